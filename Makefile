@@ -1,0 +1,33 @@
+# Two entry points (README quick start). Both set up .venv idempotently first.
+PY      := .venv/bin/python
+STAMP   := .venv/.installed
+export DVC_NO_ANALYTICS := 1
+
+.PHONY: setup repro test test-fast bench clean-venv
+
+$(STAMP): requirements.txt pyproject.toml
+	test -x $(PY) || python3 -m venv .venv
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -r requirements.txt
+	$(PY) -m pip install --quiet --no-deps -e .
+	touch $(STAMP)
+
+setup: $(STAMP)
+
+## Reproduce every result on the embedded simulated data (default scale).
+repro: $(STAMP)
+	.venv/bin/dvc repro
+
+## Run the test suite (unit, integration and the tiny end-to-end dvc repro).
+test: $(STAMP)
+	$(PY) -m pytest -q
+
+test-fast: $(STAMP)
+	$(PY) -m pytest -q -m "not slow"
+
+## Print the speed/memory figures of every benchmark script.
+bench: $(STAMP)
+	for b in benchmarks/bench_*.py; do echo "== $$b"; $(PY) $$b || exit 1; done
+
+clean-venv:
+	rm -rf .venv
