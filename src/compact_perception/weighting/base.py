@@ -1,0 +1,108 @@
+"""The loss-weighting interface (see the package docstring for the step protocol)."""
+from __future__ import annotations
+
+from typing import Any, Mapping, Sequence
+
+import torch
+from torch import Tensor, nn
+
+__all__ = ["LossWeighting", "shared_weights"]
+
+
+class LossWeighting:
+    """Base class: fixed weights ``w`` (1-D float64 tensor, task order = ``tasks``).
+
+    ``total`` implements eq. (8) with the weights as constants; every hook is a no-op.
+    Subclasses override :meth:`before_backward` / :meth:`on_epoch_end` and extend the state.
+    """
+
+    def __init__(
+        self,
+        tasks: Sequence[str],
+        weights: Mapping[str, float] | None = None,
+        *,
+        plateau_patience: int = 4,
+        plateau_factor: float = 0.5,
+    ) -> None:
+        if not tasks:
+            raise ValueError("a loss weighting needs at least one task")
+        if len(set(tasks)) != len(tasks):
+            raise ValueError(f"duplicate tasks in {list(tasks)}")
+        self.tasks: tuple[str, ...] = tuple(tasks)
+        w = [1.0] * len(self.tasks)
+        if weights is not None:
+            unknown = set(weights) - set(self.tasks)
+            if unknown:
+                raise KeyError(f"weights for unknown task(s) {sorted(unknown)}; tasks: {list(self.tasks)}")
+            w = [float(weights.get(t, 1.0)) for t in self.tasks]
+        self.w: Tensor = torch.tensor(w, dtype=torch.float64)
+        self.plateau_patience = int(plateau_patience)
+        self.plateau_factor = float(plateau_factor)
+
+    # ------------------------------------------------------------------ weights
+    @property
+    def T(self) -> int:
+        """Number of tasks (eq. 15's T)."""
+        return len(self.tasks)
+
+    @property
+    def weights(self) -> dict[str, float]:
+        """Current weights, task -> float."""
+        return {t: float(v) for t, v in zip(self.tasks, self.w.tolist())}
+
+    def _weight_tensor(self, like: Tensor) -> Tensor:
+        """The weights used in :meth:`total` (constants by default)."""
+        return self.w.detach().to(device=like.device, dtype=like.dtype)
+
+    def total(self, losses: Mapping[str, Tensor]) -> Tensor:
+        """Eq. (8): ``sum_i w_i L_i`` over the tasks (weights are constants); keys that are not
+        tasks (e.g. ``aux_*``) are added with weight 1. Every task must be in ``losses``."""
+        missing = [t for t in self.tasks if t not in losses]
+        if missing:
+            raise KeyError(f"losses lack task(s) {missing}; got {sorted(losses)}")
+        first = losses[self.tasks[0]]
+        w = self._weight_tensor(first)
+        total = sum(w[i] * losses[t] for i, t in enumerate(self.tasks))
+        for k, v in losses.items():
+            if k not in self.tasks:
+                total = total + v
+        return total
+
+    # ------------------------------------------------------------------ hooks
+    def before_backward(self, step: int, n_steps: int, losses: Mapping[str, Tensor], model: nn.Module) -> None:
+        """Called every training step after the forward pass, before ``total(losses).backward()``."""
+
+    def on_epoch_end(self, improved: bool) -> None:
+        """Called once per epoch after validation; ``improved`` = the validation TM dropped."""
+
+    # ------------------------------------------------------------------ state
+    def state_dict(self) -> dict[str, Any]:
+        return {"tasks": list(self.tasks), "w": self.w.tolist()}
+
+    def load_state_dict(self, state: Mapping[str, Any]) -> None:
+        if list(state["tasks"]) != list(self.tasks):
+            raise ValueError(f"state is for tasks {state['tasks']}, this weighting has {list(self.tasks)}")
+        self.w = torch.tensor(state["w"], dtype=torch.float64)
+
+    def log_values(self) -> dict[str, float]:
+        """Values to log each epoch: ``w_<task>`` (subclasses add ``lr_w``)."""
+        return {f"w_{t}": v for t, v in self.weights.items()}
+
+
+def shared_weights(model: nn.Module, names: Sequence[str]) -> list[nn.Parameter]:
+    """The weights W of the modules ``names`` (``model.get_submodule``): every parameter called
+    ``weight`` inside them (conv kernels / linear matrices; biases excluded), or all of a module's
+    parameters if it has none called ``weight`` (the subset W of the paper)."""
+    params: list[nn.Parameter] = []
+    seen: set[int] = set()
+    for name in names:
+        mod = model.get_submodule(name)
+        named = list(mod.named_parameters())
+        chosen = [p for n, p in named if n == "weight" or n.endswith(".weight")] or [p for _, p in named]
+        if not chosen:
+            raise ValueError(f"shared module {name!r} has no parameters")
+        for p in chosen:
+            if id(p) not in seen:
+                seen.add(id(p))
+                params.append(p)
+    return params

@@ -1,0 +1,71 @@
+"""Original GradNorm (Chen, Badrinarayanan, Lee, Rabinovich, ICML 2018), per-step updates."""
+from __future__ import annotations
+
+from typing import Any, Literal, Mapping, Sequence
+
+import torch
+from torch import Tensor, nn
+
+from ..config import ModelRecipe
+from .mgn import GradNormCore
+
+__all__ = ["GradNormWeighting"]
+
+
+class GradNormWeighting(GradNormCore):
+    """GradNorm: L_i(0) from the very first training step (kept across epochs, saved in the
+    state); w updated at EVERY step (including the first, where r_i = 1) with its own optimizer
+    (``"adam"`` default, or ``"sgd"``) at ``lr = GradNormParams.lr``; then the positive floor and
+    renormalisation to sum T (as in :class:`GradNormCore`). W = ``model.shared_layers()[task]``
+    (the last shared layer for the GradNorm-SegNet baseline). The weight lr is constant
+    (``on_epoch_end`` only counts bad epochs), as in the original algorithm."""
+
+    def __init__(self, tasks: Sequence[str], shared: Mapping[str, Sequence[str]] | None = None, *,
+                 optimizer: Literal["adam", "sgd"] = "adam", alpha: float = 1.5, lr: float = 0.025,
+                 **kw: Any) -> None:
+        super().__init__(tasks, shared, alpha=alpha, lr=lr, lr_min=lr, **kw)
+        self.optimizer_name = optimizer
+        self._param = torch.nn.Parameter(self.w.clone())
+        if optimizer == "adam":
+            self.opt: torch.optim.Optimizer = torch.optim.Adam([self._param], lr=self.lr)
+        elif optimizer == "sgd":
+            self.opt = torch.optim.SGD([self._param], lr=self.lr)
+        else:
+            raise ValueError(f"unknown GradNorm optimizer {optimizer!r}; known: adam, sgd")
+
+    @classmethod
+    def from_recipe(cls, recipe: ModelRecipe, tasks: Sequence[str], model: nn.Module | None = None,
+                    **kw: Any) -> "GradNormWeighting":
+        p = recipe.gradnorm
+        if p is None:
+            raise ValueError("weighting 'gradnorm' needs a 'gradnorm' section in the recipe")
+        shared = model.shared_layers() if model is not None else None
+        return cls(tasks, shared, alpha=p.alpha, lr=p.lr, **kw)
+
+    def on_epoch_end(self, improved: bool) -> None:
+        """Constant weight lr (original GradNorm); only the bad-epoch count is kept."""
+        self.bad_epochs = 0 if improved else self.bad_epochs + 1
+
+    def before_backward(self, step: int, n_steps: int, losses: Mapping[str, Tensor], model: nn.Module) -> None:
+        """One GradNorm update of w per training step."""
+        if self.L0 is None:
+            self.L0 = self._loss_vector(losses)
+        g = self._grad_w(losses, model)
+        self.opt.zero_grad(set_to_none=True)
+        self._param.grad = g.clone()
+        self.opt.step()
+        with torch.no_grad():
+            self._param.copy_(self._renormalise(self._param.detach()))
+        self.w = self._param.detach().clone()
+        self.n_updates += 1
+
+    def state_dict(self) -> dict[str, Any]:
+        s = super().state_dict()
+        s["optimizer"] = self.opt.state_dict()
+        return s
+
+    def load_state_dict(self, state: Mapping[str, Any]) -> None:
+        super().load_state_dict(state)
+        with torch.no_grad():
+            self._param.copy_(self.w)
+        self.opt.load_state_dict(state["optimizer"])

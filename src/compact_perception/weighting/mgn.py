@@ -1,0 +1,219 @@
+"""Modified GradNorm (MGN), paper section III-C, eq. (8)-(15), Algorithm 1.
+
+Shared machinery with the original GradNorm (:mod:`.gradnorm`) lives in :class:`GradNormCore`.
+"""
+from __future__ import annotations
+
+from typing import Any, Mapping, Sequence
+
+import torch
+from torch import Tensor, nn
+
+from ..config import ModelRecipe
+from .base import LossWeighting, shared_weights
+
+__all__ = ["GradNormCore", "MGNWeighting"]
+
+
+class GradNormCore(LossWeighting):
+    """Gradient-norm balancing of the loss weights (eq. 9-15), the part MGN and GradNorm share.
+
+    One update (``_grad_w`` + the subclass step):
+
+    1. ``n_i = ||grad_W L_i||_2`` with W = the weights of ``shared[task]``, computed with
+       ``torch.autograd.grad(..., retain_graph=True)``: no ``.grad`` is written and the forward
+       graph survives for the following ``total(...).backward()``.
+    2. ``G_i = ||grad_W (w_i L_i)|| = w_i n_i`` (eq. 9, w_i > 0), ``G_avg = mean_i G_i`` (eq. 10).
+    3. ``Lbar_i = L_i / L_i(0)`` (eq. 11), ``r_i = Lbar_i / mean_j Lbar_j`` (eq. 12).
+    4. targets ``G_avg r_i^alpha``, detached (eq. 14); ``L_MGN = sum_i |target_i - G_i|`` (eq. 13);
+       ``dL_MGN/dw_i = -sign(target_i - G_i) n_i``, obtained by autograd on a float64 copy of w
+       only, so L_MGN moves nothing but w.
+    5. a gradient step on w, then the non-positive guard and eq. (15) renormalisation:
+       ``w <- max(w, floor)``, ``floor = min_weight_ratio * T`` (default 1e-3 T), then
+       ``w <- T w / sum(w)``. A weight <= 0 would switch a task off or make training *maximise*
+       its loss, and eq. (15) is undefined for ``sum w <= 0``; the floor keeps every task in play
+       with a tiny weight (>= floor T / sum w > 0 after renormalising) and keeps sum w = T exactly.
+    """
+
+    def __init__(
+        self,
+        tasks: Sequence[str],
+        shared: Mapping[str, Sequence[str]] | None = None,
+        *,
+        alpha: float = 1.5,
+        lr: float = 0.1,
+        lr_min: float = 1e-4,
+        min_weight_ratio: float = 1e-3,
+        plateau_patience: int = 4,
+        plateau_factor: float = 0.5,
+    ) -> None:
+        super().__init__(tasks, plateau_patience=plateau_patience, plateau_factor=plateau_factor)
+        self.shared: dict[str, list[str]] | None = (
+            {t: list(shared[t]) for t in self.tasks} if shared is not None else None
+        )
+        self.alpha = float(alpha)
+        self.lr = float(lr)
+        self.lr_min = float(lr_min)
+        if not 0.0 < min_weight_ratio < 1.0 / len(self.tasks):
+            raise ValueError("min_weight_ratio must be in (0, 1/T)")
+        self.min_weight_ratio = float(min_weight_ratio)
+        self.L0: Tensor | None = None  # float64 (T,)
+        self.bad_epochs = 0
+        self.n_updates = 0
+        self.last: dict[str, Any] = {}  # diagnostics of the last update (float64 tensors)
+
+    # ------------------------------------------------------------------ pieces
+    def _shared_names(self, model: nn.Module) -> dict[str, list[str]]:
+        if self.shared is None:
+            layers = model.shared_layers()
+            self.shared = {t: list(layers[t]) for t in self.tasks}
+        return self.shared
+
+    def _loss_vector(self, losses: Mapping[str, Tensor]) -> Tensor:
+        missing = [t for t in self.tasks if t not in losses]
+        if missing:
+            raise KeyError(f"losses lack task(s) {missing}; got {sorted(losses)}")
+        return torch.tensor([float(losses[t].detach()) for t in self.tasks], dtype=torch.float64)
+
+    def _grad_norms(self, losses: Mapping[str, Tensor], model: nn.Module) -> Tensor:
+        """``n_i = ||grad_W L_i||_2`` (float64, (T,)); writes no ``.grad``."""
+        names = self._shared_names(model)
+        norms = []
+        for t in self.tasks:
+            W = shared_weights(model, names[t])
+            L = losses[t]
+            if not L.requires_grad:
+                norms.append(0.0)
+                continue
+            grads = torch.autograd.grad(L, W, retain_graph=True, allow_unused=True)
+            sq = sum(float(g.detach().double().pow(2).sum()) for g in grads if g is not None)
+            norms.append(sq ** 0.5)
+        return torch.tensor(norms, dtype=torch.float64)
+
+    def _targets(self, G: Tensor, L: Tensor) -> tuple[Tensor, Tensor]:
+        """Eq. (10)-(14): relative inverse rates r and the detached targets ``G_avg r^alpha``."""
+        L0 = self.L0 if self.L0 is not None else L
+        ratio = L / L0.clamp_min(1e-12)
+        r = ratio / ratio.mean().clamp_min(1e-12)
+        target = (G.mean() * r.pow(self.alpha)).detach()
+        return r, target
+
+    def _renormalise(self, w: Tensor) -> Tensor:
+        """Non-positive guard + eq. (15): ``w <- T max(w, floor) / sum``."""
+        T = float(self.T)
+        w = w.clamp_min(self.min_weight_ratio * T)
+        return w * (T / w.sum())
+
+    def _grad_w(self, losses: Mapping[str, Tensor], model: nn.Module) -> Tensor:
+        """``dL_grad/dw`` (float64, (T,)) in the default (first-order, network-isolated) mode."""
+        L = self._loss_vector(losses)
+        n = self._grad_norms(losses, model)
+        w = self.w.detach().clone().requires_grad_(True)
+        G = w * n
+        r, target = self._targets(G.detach(), L)
+        l_grad = (target - G).abs().sum()
+        (g,) = torch.autograd.grad(l_grad, w)
+        self.last = {"norms": n, "G": G.detach(), "r": r, "target": target, "L": L,
+                     "l_grad": float(l_grad.detach()), "grad_w": g.detach()}
+        return g.detach()
+
+    # ------------------------------------------------------------------ plateau / state
+    def on_epoch_end(self, improved: bool) -> None:
+        """Plateau halving of the weight lr: after ``plateau_patience`` epochs in a row without a
+        drop of the validation TM, ``lr <- max(lr * factor, lr_min)`` (and the count restarts)."""
+        if improved:
+            self.bad_epochs = 0
+            return
+        self.bad_epochs += 1
+        if self.bad_epochs >= self.plateau_patience:
+            self.lr = max(self.lr * self.plateau_factor, self.lr_min)
+            self.bad_epochs = 0
+
+    def state_dict(self) -> dict[str, Any]:
+        s = super().state_dict()
+        s.update(lr=self.lr, bad_epochs=self.bad_epochs, n_updates=self.n_updates,
+                 L0=None if self.L0 is None else self.L0.tolist())
+        return s
+
+    def load_state_dict(self, state: Mapping[str, Any]) -> None:
+        super().load_state_dict(state)
+        self.lr = float(state["lr"])
+        self.bad_epochs = int(state["bad_epochs"])
+        self.n_updates = int(state["n_updates"])
+        self.L0 = None if state["L0"] is None else torch.tensor(state["L0"], dtype=torch.float64)
+
+    def log_values(self) -> dict[str, float]:
+        out = super().log_values()
+        out["lr_w"] = self.lr
+        return out
+
+
+class MGNWeighting(GradNormCore):
+    """MGN (Algorithm 1): L_i(0) recorded at step 0 of every epoch; one update of w at the last
+    step of the epoch (``step == n_steps - 1``; with ``n_steps == 1`` that is the same step), by
+    plain SGD (``w <- w - lr dL_MGN/dw``, lr 0.1 halved on plateau down to lr_min 1e-4), then the
+    floor and eq. (15). In the default mode L_MGN touches neither a network parameter nor its
+    ``.grad`` and ``total()`` treats w as constants.
+
+    ``authors_mode=True`` (MgnParams.authors_mode, SPEC 7) reproduces the authors' public code:
+    G_i is built with ``create_graph=True`` and ``L_MGN.backward(retain_graph=True)`` is run, so
+    the second-order terms ``dL_MGN/dtheta`` are *accumulated into the network's .grad* (on top of
+    the later ``total().backward()``), and w's gradient is ``dL_MGN/dw + dL_total/dw`` where
+    ``dL_total/dw_i = L_i`` (eq. 8; added analytically, which equals what a non-detached w in
+    ``total()`` would receive from that step's backward).
+    """
+
+    def __init__(self, tasks: Sequence[str], shared: Mapping[str, Sequence[str]] | None = None, *,
+                 authors_mode: bool = False, **kw: Any) -> None:
+        super().__init__(tasks, shared, **kw)
+        self.authors_mode = bool(authors_mode)
+
+    @classmethod
+    def from_recipe(cls, recipe: ModelRecipe, tasks: Sequence[str], model: nn.Module | None = None,
+                    **kw: Any) -> "MGNWeighting":
+        p = recipe.mgn
+        if p is None:
+            raise ValueError("weighting 'mgn' needs an 'mgn' section in the recipe")
+        shared = model.shared_layers() if model is not None else None
+        return cls(tasks, shared, alpha=p.alpha, lr=p.lr, lr_min=p.lr_min, authors_mode=p.authors_mode, **kw)
+
+    def _grad_w_authors(self, losses: Mapping[str, Tensor], model: nn.Module) -> Tensor:
+        """Authors' variant: second-order terms reach the network; w also gets dL_total/dw."""
+        names = self._shared_names(model)
+        L = self._loss_vector(losses)
+        ref = losses[self.tasks[0]]
+        w = self.w.detach().to(device=ref.device, dtype=ref.dtype).requires_grad_(True)
+        Gs = []
+        for i, t in enumerate(self.tasks):
+            W = shared_weights(model, names[t])
+            Li = losses[t]
+            if not Li.requires_grad:
+                Gs.append(w[i] * 0.0)
+                continue
+            grads = torch.autograd.grad(w[i] * Li, W, retain_graph=True, create_graph=True, allow_unused=True)
+            sq = sum((g.pow(2).sum() for g in grads if g is not None), w[i] * 0.0)
+            Gs.append(sq.clamp_min(1e-30).sqrt())  # no inf gradient at a zero norm
+        G = torch.stack(Gs)
+        r, target = self._targets(G.detach().double().cpu(), L)
+        l_mgn = (target.to(G) - G).abs().sum()
+        l_mgn.backward(retain_graph=True)  # into w.grad AND the network's .grad (authors' code)
+        g = w.grad.detach().double().cpu() + L  # + dL_total/dw_i = L_i
+        self.last = {"G": G.detach().double().cpu(), "r": r, "target": target, "L": L,
+                     "l_grad": float(l_mgn.detach()), "grad_w": g}
+        return g
+
+    def before_backward(self, step: int, n_steps: int, losses: Mapping[str, Tensor], model: nn.Module) -> None:
+        """Algorithm 1: record L_i(0) at step 0; update w at step n_steps - 1."""
+        if n_steps < 1 or not 0 <= step < n_steps:
+            raise ValueError(f"step {step} outside [0, n_steps={n_steps})")
+        if step == 0:
+            self.L0 = self._loss_vector(losses)
+        if step == n_steps - 1:
+            g = self._grad_w_authors(losses, model) if self.authors_mode else self._grad_w(losses, model)
+            self.w = self._renormalise(self.w - self.lr * g)
+            self.n_updates += 1
+
+    def state_dict(self) -> dict[str, Any]:
+        s = super().state_dict()
+        s["authors_mode"] = self.authors_mode
+        return s
