@@ -1,0 +1,47 @@
+"""Stage preprocess@<ds>: data/raw/<ds>/ (or the authors' dataset) -> data/cache/<ds>/ (SPEC 4).
+
+Thin wrapper around :func:`compact_perception.preprocess.preprocess_dataset`; also draws
+``reports/figures/lidar_preprocessing_<ds>.png`` (Fig. 5-like).
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+
+from compact_perception.cache import CacheError
+from compact_perception.preprocess import RecordError, preprocess_dataset
+
+try:  # run as `python -m pipeline.preprocess` (dvc.yaml) or as a script
+    from pipeline._common import start
+except ImportError:  # pragma: no cover
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from pipeline._common import start
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--dataset", required=True, choices=["A", "B", "C"])
+    ap.add_argument("--params", default="params.yaml")
+    ap.add_argument("--raw-root", default="data/raw")
+    ap.add_argument("--cache-root", default="data/cache")
+    ap.add_argument("--figures", default="reports/figures")
+    args = ap.parse_args(argv)
+    params = start(args.params)
+    try:
+        preprocess_dataset(
+            params,
+            args.dataset,
+            raw_root=args.raw_root,
+            cache_root=args.cache_root,
+            figure_path=Path(args.figures) / f"lidar_preprocessing_{args.dataset}.png",
+        )
+    except (RecordError, CacheError) as err:
+        logging.getLogger("preprocess").error("%s", err)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

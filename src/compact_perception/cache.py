@@ -1,0 +1,226 @@
+"""The model-ready cache (SPEC 4, docs/ARCHITECTURE.md "Cache layout").
+
+```
+<out_dir>/meta.json                 meta given by the caller + counts, keys, dtypes, shapes
+<out_dir>/<split>/<key>.npy         one memory-mappable array per key, first axis = frame
+<out_dir>/<split>/frame_ids.json
+```
+
+:func:`write_cache` is generic over the keys present: whatever arrays the first frame
+of a split carries (e.g. no ``dvs`` for nuScenes, 32-class maps) define the arrays of
+that split, and every later frame must carry the same keys with the same dtype and
+shape (else a ValueError naming the frame). Frames stream to disk one at a time (memory
+stays O(one frame)) into .npy files whose fixed-size header is rewritten with the final
+count at the end; everything is built inside :func:`compact_perception.io.atomic_dir`,
+so an error or an interruption leaves no cache directory behind.
+
+A frame dict holds numpy arrays plus an optional ``"frame_id"`` (str); frames without
+one are named ``<split>_<index:06d>``.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import struct
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable, Mapping
+
+import numpy as np
+from tqdm import tqdm
+
+from . import io as cio
+
+log = logging.getLogger(__name__)
+
+CACHE_FORMAT_VERSION = 1
+_HEADER_LEN = 256  # fixed .npy header size (magic + version + len + dict), multiple of 64
+ID_KEY = "frame_id"
+
+
+class CacheError(ValueError):
+    """A cache cannot be written or read; the message names the split, frame or file."""
+
+
+def _npy_header(dtype: np.dtype, shape: tuple[int, ...]) -> bytes:
+    """A version-1.0 .npy header padded to exactly ``_HEADER_LEN`` bytes."""
+    d = {"descr": np.lib.format.dtype_to_descr(np.dtype(dtype)), "fortran_order": False, "shape": tuple(shape)}
+    text = repr(d).encode("latin1")
+    body_len = _HEADER_LEN - 10  # 6 magic + 2 version + 2 length bytes
+    if len(text) + 1 > body_len:
+        raise CacheError(f"npy header too long for shape {shape}")
+    text = text + b" " * (body_len - len(text) - 1) + b"\n"
+    return b"\x93NUMPY" + bytes([1, 0]) + struct.pack("<H", body_len) + text
+
+
+class _ArrayStream:
+    """Appends frames to ``<key>.npy``; the header gets the final count on close."""
+
+    def __init__(self, path: Path, dtype: np.dtype, shape: tuple[int, ...]) -> None:
+        self.path, self.dtype, self.shape, self.count = path, np.dtype(dtype), tuple(shape), 0
+        self.fh = open(path, "wb")
+        self.fh.write(_npy_header(self.dtype, (0,) + self.shape))
+
+    def append(self, arr: np.ndarray) -> None:
+        self.fh.write(np.ascontiguousarray(arr).tobytes())
+        self.count += 1
+
+    def close(self) -> None:
+        self.fh.seek(0)
+        self.fh.write(_npy_header(self.dtype, (self.count,) + self.shape))
+        self.fh.close()
+
+
+def _write_split(split_dir: Path, split: str, frames: Iterable[Mapping[str, Any]], progress: bool = False) -> dict[str, Any]:
+    split_dir.mkdir(parents=True)
+    streams: dict[str, _ArrayStream] = {}
+    ids: list[str] = []
+    try:
+        total = len(frames) if hasattr(frames, "__len__") else None  # type: ignore[arg-type]
+        for n, frame in enumerate(tqdm(frames, desc=f"cache {split}", total=total, leave=False, disable=not progress)):
+            fid = str(frame.get(ID_KEY, f"{split}_{n:06d}"))
+            arrays = {k: np.asarray(v) for k, v in frame.items() if k != ID_KEY}
+            if not streams:
+                if not arrays:
+                    raise CacheError(f"split {split!r}, frame {fid}: frame has no arrays")
+                for key in sorted(arrays):
+                    a = arrays[key]
+                    streams[key] = _ArrayStream(split_dir / f"{key}.npy", a.dtype, a.shape)
+            if set(arrays) != set(streams):
+                raise CacheError(
+                    f"split {split!r}, frame {fid}: keys {sorted(arrays)} differ from the split's keys {sorted(streams)}"
+                )
+            for key, s in streams.items():
+                a = arrays[key]
+                if a.dtype != s.dtype or a.shape != s.shape:
+                    raise CacheError(
+                        f"split {split!r}, frame {fid}: {key} is {a.dtype}{a.shape}, expected {s.dtype}{s.shape}"
+                    )
+                s.append(a)
+            ids.append(fid)
+    finally:
+        for s in streams.values():
+            s.close()
+    if not ids:
+        raise CacheError(f"split {split!r} is empty: no frames to cache")
+    if len(set(ids)) != len(ids):
+        raise CacheError(f"split {split!r}: duplicate frame ids")
+    cio.write_json(split_dir / "frame_ids.json", ids)
+    return {"count": len(ids), "keys": {k: {"dtype": s.dtype.str, "shape": list(s.shape)} for k, s in streams.items()}}
+
+
+def write_cache(
+    out_dir: str | os.PathLike,
+    splits: Mapping[str, Iterable[Mapping[str, Any]]],
+    meta: Mapping[str, Any],
+    progress: bool = False,
+) -> Path:
+    """Write the cache atomically (nothing partial remains on error); returns ``out_dir``.
+
+    ``splits`` maps split names to iterables of frame dicts (consumed once, in order);
+    ``meta`` must be JSON-serialisable (e.g. ``dataset, source, seg_classes, bev_classes,
+    has_dvs, resolution, views``); ``counts``, ``keys`` and ``format_version`` are added.
+    Raises :class:`CacheError` for an empty split, inconsistent frames, or ``has_dvs``
+    disagreeing with the frames. ``progress`` shows a tqdm bar per split (off by default:
+    callers usually wrap their frame iterator in their own bar).
+    """
+    out_dir = Path(out_dir)
+    if not splits:
+        raise CacheError(f"{out_dir}: no splits given")
+    full_meta = dict(meta)
+    try:
+        json.dumps(full_meta)
+    except TypeError as err:
+        raise CacheError(f"{out_dir}: meta is not JSON-serialisable: {err}") from None
+    with cio.atomic_dir(out_dir) as tmp:
+        info = {name: _write_split(tmp / name, name, frames, progress) for name, frames in splits.items()}
+        if "has_dvs" in full_meta:
+            for name, inf in info.items():
+                if bool(full_meta["has_dvs"]) != ("dvs" in inf["keys"]):
+                    raise CacheError(f"split {name!r}: meta has_dvs={full_meta['has_dvs']} but keys are {sorted(inf['keys'])}")
+        full_meta["counts"] = {name: inf["count"] for name, inf in info.items()}
+        full_meta["keys"] = {name: inf["keys"] for name, inf in info.items()}
+        full_meta["format_version"] = CACHE_FORMAT_VERSION
+        cio.write_json(tmp / "meta.json", full_meta)
+    log.info("wrote cache %s: %s", out_dir, full_meta["counts"])
+    return out_dir
+
+
+@dataclass(frozen=True)
+class CacheSplit:
+    """One split of a cache: frame ids and read-only memory-mapped arrays (first axis = frame)."""
+
+    name: str
+    frame_ids: list[str]
+    arrays: dict[str, np.ndarray] = field(repr=False)
+
+    def __len__(self) -> int:
+        return len(self.frame_ids)
+
+
+@dataclass(frozen=True)
+class CacheInfo:
+    """An opened cache (:func:`read_cache`)."""
+
+    path: Path
+    meta: dict[str, Any]
+    splits: dict[str, CacheSplit]
+
+    @property
+    def has_dvs(self) -> bool:
+        return bool(self.meta.get("has_dvs", any("dvs" in s.arrays for s in self.splits.values())))
+
+    @property
+    def num_seg_classes(self) -> int:
+        return len(self.meta["seg_classes"])
+
+    @property
+    def num_bev_classes(self) -> int:
+        return len(self.meta["bev_classes"])
+
+    def __getitem__(self, split: str) -> CacheSplit:
+        try:
+            return self.splits[split]
+        except KeyError:
+            raise CacheError(f"{self.path}: no split {split!r}; has {sorted(self.splits)}") from None
+
+
+def read_split(cache_dir: str | os.PathLike, split: str, meta: Mapping[str, Any] | None = None) -> CacheSplit:
+    """Open one split's arrays with ``mmap_mode="r"``; checks every array has one row per frame id."""
+    cache_dir = Path(cache_dir)
+    if meta is None:
+        meta = read_meta(cache_dir)
+    sdir = cache_dir / split
+    ids_path = sdir / "frame_ids.json"
+    if split not in meta.get("counts", {}) or not ids_path.is_file():
+        raise CacheError(f"{cache_dir}: no split {split!r} (has {sorted(meta.get('counts', {}))})")
+    ids = json.loads(ids_path.read_text())
+    arrays: dict[str, np.ndarray] = {}
+    for key in meta["keys"][split]:
+        path = sdir / f"{key}.npy"
+        try:
+            arr = np.load(path, mmap_mode="r")
+        except (OSError, ValueError) as err:
+            raise CacheError(f"{path}: cannot open cache array: {err}") from None
+        if arr.shape[0] != len(ids):
+            raise CacheError(f"{path}: {arr.shape[0]} rows but {len(ids)} frame ids")
+        arrays[key] = arr
+    return CacheSplit(split, ids, arrays)
+
+
+def read_meta(cache_dir: str | os.PathLike) -> dict[str, Any]:
+    """Read a cache's meta.json (CacheError if the directory is not a cache)."""
+    cache_dir = Path(cache_dir)
+    path = cache_dir / "meta.json"
+    if not path.is_file():
+        raise CacheError(f"{cache_dir}: not a cache (no meta.json); run the preprocess stage")
+    return json.loads(path.read_text())
+
+
+def read_cache(cache_dir: str | os.PathLike) -> CacheInfo:
+    """Open a cache written by :func:`write_cache` (arrays memory-mapped read-only)."""
+    cache_dir = Path(cache_dir)
+    meta = read_meta(cache_dir)
+    splits = {name: read_split(cache_dir, name, meta) for name in meta["counts"]}
+    return CacheInfo(cache_dir, meta, splits)
