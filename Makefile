@@ -2,6 +2,8 @@
 PY      := .venv/bin/python
 STAMP   := .venv/.installed
 export DVC_NO_ANALYTICS := 1
+# Stage commands call `python`: make it the project venv.
+export PATH := $(CURDIR)/.venv/bin:$(PATH)
 
 .PHONY: setup repro test test-fast bench clean-venv
 

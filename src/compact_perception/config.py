@@ -193,6 +193,7 @@ class ModelRecipe(Strict):
     momentum: float = Field(0.9, ge=0.0, lt=1.0)
     weight_decay: float = Field(1e-4, ge=0.0)
     weighting: Literal["static", "mgn", "gradnorm", "none"] = "static"
+    max_epochs: Optional[Scaled[int]] = Field(None, description="overrides train.max_epochs for this model")
     mgn: Optional[MgnParams] = None
     gradnorm: Optional[GradNormParams] = None
 

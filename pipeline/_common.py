@@ -1,0 +1,17 @@
+"""Shared start-up of every stage: logging and validated params."""
+from __future__ import annotations
+
+import logging
+import sys
+from pathlib import Path
+
+from compact_perception.config import Params, ParamsError, load_params
+
+
+def start(params_path: str | Path = "params.yaml") -> Params:
+    """Configure logging and return validated params; exit with the message on bad input."""
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    try:
+        return load_params(params_path)
+    except ParamsError as err:
+        sys.exit(f"error: {err}")
