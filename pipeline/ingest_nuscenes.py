@@ -1,0 +1,38 @@
+"""Stage ingest_nuscenes: a nuScenes-lidarseg dataroot (real, or the simulated export) ->
+data/cache/nuscenes/ (paper section IV-B, SPEC 3.2).
+
+Thin wrapper around :func:`compact_perception.nuscenes.ingest.ingest_from_params`. Missing
+input (dataroot, lidarseg folder, sweeps, images, label files) stops with a message naming it
+before anything is written (exit status 1).
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+
+try:  # python -m pipeline.<stage> or python pipeline/<stage>.py
+    from ._common import start
+except ImportError:
+    from _common import start  # type: ignore[no-redef]
+
+from compact_perception.nuscenes.ingest import NuScenesInputError, ingest_from_params
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--params", default="params.yaml")
+    ap.add_argument("--sim-root", default="data/raw/nuscenes_sim", help="dataroot used when datasets.nuscenes.dataroot is null")
+    ap.add_argument("--out", default="data/cache/nuscenes")
+    args = ap.parse_args(argv)
+    params = start(args.params)
+    try:
+        ingest_from_params(params, args.out, sim_root=args.sim_root)
+    except NuScenesInputError as err:
+        logging.getLogger("ingest_nuscenes").error("%s", err)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,36 @@
+"""Stage nuscenes_sim: the simulated world -> data/raw/nuscenes_sim/ (a nuScenes-format dataroot).
+
+Only does work when ``datasets.nuscenes.dataroot`` is null (SPEC 3.2); with a real dataroot it
+logs that and exits 0 without writing. Thin wrapper around
+:func:`compact_perception.nuscenes.export.export_nuscenes_sim`.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+
+try:  # python -m pipeline.<stage> or python pipeline/<stage>.py
+    from ._common import start
+except ImportError:
+    from _common import start  # type: ignore[no-redef]
+
+from compact_perception.nuscenes.export import export_nuscenes_sim
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--params", default="params.yaml")
+    ap.add_argument("--out", default="data/raw/nuscenes_sim")
+    args = ap.parse_args(argv)
+    params = start(args.params)
+    log = logging.getLogger("nuscenes_sim")
+    if params.datasets.nuscenes.dataroot:
+        log.info("datasets.nuscenes.dataroot is set (%s): no simulated set written", params.datasets.nuscenes.dataroot)
+        return 0
+    export_nuscenes_sim(params, args.out)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,25 @@
+"""nuScenes-lidarseg support (paper section IV-B, SPEC 3.2).
+
+- :mod:`.export`     the simulated world -> a small dataroot in nuScenes format (tables, sweeps,
+  lidarseg labels, images, annotation boxes, map) that the real devkit loads;
+- :mod:`.ingest`     any nuScenes-lidarseg dataroot -> preprocessed frame dicts via the devkit;
+- :mod:`.split`      scene split 3:1:1 with a fixed seed;
+- :mod:`.projection` LiDAR points -> camera pixels (devkit calibrated_sensor / ego_pose chain) and
+  the neighbour filling that makes SS/DE ground truth;
+- :mod:`.classmap`   CARLA tags / world actors -> the 32 lidarseg classes.
+
+Submodules are imported lazily so that ``import compact_perception.nuscenes`` stays cheap and
+does not shadow the devkit's top-level ``nuscenes`` package (absolute imports are used throughout).
+"""
+from __future__ import annotations
+
+#: nuScenes camera channel of each of our views (geometry.VIEWS order f, l, ri, r).
+VIEW_CHANNELS: dict[str, str] = {
+    "f": "CAM_FRONT",
+    "l": "CAM_FRONT_LEFT",
+    "ri": "CAM_FRONT_RIGHT",
+    "r": "CAM_BACK",
+}
+LIDAR_CHANNEL = "LIDAR_TOP"
+
+__all__ = ["VIEW_CHANNELS", "LIDAR_CHANNEL"]
