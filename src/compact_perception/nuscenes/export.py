@@ -54,7 +54,7 @@ import logging
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable, Iterator, Optional
+from typing import Any, Callable, Iterable, Optional
 
 import numpy as np
 from PIL import Image
@@ -62,11 +62,12 @@ from tqdm import tqdm
 
 from compact_perception.classes import NUSCENES_NAMES, TAG
 from compact_perception.config import TOWNS, CameraParams, LidarParams, Params, WorldParams
-from compact_perception.geometry import VIEW_YAW_DEG, VIEWS, topview_cell_centres
+from compact_perception.geometry import VIEWS, topview_cell_centres
 from compact_perception.io import atomic_dir, write_bytes
 from compact_perception.nuscenes import LIDAR_CHANNEL, VIEW_CHANNELS
 from compact_perception.nuscenes.classmap import actor_category, map_carla_tags, refine_point_labels
 from compact_perception.nuscenes.projection import matrix_to_quat, yaw_quat
+from compact_perception.world.camera import ego_from_camera, intrinsic_matrix
 
 log = logging.getLogger(__name__)
 
@@ -98,36 +99,10 @@ def episode_seed(seed: int, scene_index: int) -> int:
 def camera_calibration(
     view: str, camera: CameraParams, lidar_height: float, resolution: int
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(3x3 intrinsics, 4x4 ego/LiDAR-frame-from-camera) of one world camera.
-
-    Uses the world's public helpers ``compact_perception.world.camera.intrinsic_matrix`` and
-    ``ego_from_camera``; falls back to the ARCHITECTURE.md conventions (pinhole, fx = fy =
-    (S/2)/tan(fov/2), cx = cy = S/2; camera ``mount_offset_m`` from the ego centre along its yaw,
-    ``height_m`` above ground, pitched up by ``pitch_deg``) while that module is absent.
-    """
-    try:
-        from compact_perception.world.camera import ego_from_camera, intrinsic_matrix  # type: ignore
-    except ImportError:
-        return _fallback_intrinsics(resolution, camera.fov_deg), _fallback_ego_from_camera(view, camera, lidar_height)
+    """(3x3 intrinsics, 4x4 ego/LiDAR-frame-from-camera) of one world camera, from the world's
+    own camera model (``compact_perception.world.camera``), so the export and the renderer agree."""
     return (np.asarray(intrinsic_matrix(resolution, camera.fov_deg), dtype=np.float64),
             np.asarray(ego_from_camera(view, camera, lidar_height), dtype=np.float64))
-
-
-def _fallback_intrinsics(size: int, fov_deg: float) -> np.ndarray:
-    f = (size / 2.0) / math.tan(math.radians(fov_deg) / 2.0)
-    return np.array([[f, 0.0, size / 2.0], [0.0, f, size / 2.0], [0.0, 0.0, 1.0]])
-
-
-def _fallback_ego_from_camera(view: str, camera: CameraParams, lidar_height: float) -> np.ndarray:
-    yaw, pitch = math.radians(VIEW_YAW_DEG[view]), math.radians(camera.pitch_deg)
-    z_axis = np.array([math.cos(pitch) * math.cos(yaw), math.cos(pitch) * math.sin(yaw), math.sin(pitch)])
-    x_axis = np.array([math.sin(yaw), -math.cos(yaw), 0.0])
-    y_axis = np.cross(z_axis, x_axis)
-    t = np.eye(4)
-    t[:3, :3] = np.stack([x_axis, y_axis, z_axis], axis=1)
-    t[:3, 3] = [camera.mount_offset_m * math.cos(yaw), camera.mount_offset_m * math.sin(yaw),
-                camera.height_m - lidar_height]
-    return t
 
 
 #: LIDAR_TOP rotation (sensor -> ego): yaw -90 deg, so sensor x = right, y = forward.

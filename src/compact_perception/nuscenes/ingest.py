@@ -50,10 +50,9 @@ from __future__ import annotations
 
 import contextlib
 import io
-import json
+
 import logging
 import math
-import os
 import time
 from pathlib import Path
 from typing import Any, Callable, Iterator, Optional, Sequence
