@@ -1,8 +1,10 @@
 """Shared start-up of every stage: logging and validated params."""
 from __future__ import annotations
 
+import atexit
 import logging
 import sys
+import time
 from pathlib import Path
 
 from compact_perception.config import Params, ParamsError, load_params
@@ -11,6 +13,9 @@ from compact_perception.config import Params, ParamsError, load_params
 def start(params_path: str | Path = "params.yaml") -> Params:
     """Configure logging and return validated params; exit with the message on bad input."""
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    t0, argv = time.perf_counter(), " ".join(sys.argv[1:])
+    atexit.register(lambda: logging.getLogger("pipeline").info("stage %s [%s] took %.1f s",
+                                                               Path(sys.argv[0]).stem, argv, time.perf_counter() - t0))
     try:
         return load_params(params_path)
     except ParamsError as err:

@@ -10,7 +10,9 @@ import logging
 import sys
 from pathlib import Path
 
-from compact_perception.config import ParamsError, load_params
+from compact_perception.config import ParamsError
+
+from ._common import start
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -20,12 +22,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default="data/raw", help="parent of the dataset directory")
     ap.add_argument("--figure-dir", default="reports/figures")
     args = ap.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    try:
-        params = load_params(args.params)
-    except ParamsError as err:
-        print(err, file=sys.stderr)
-        return 2
+    params = start(args.params)
     dp = getattr(params.datasets, args.dataset)
     if dp.source != "sim":
         print(f"datasets.{args.dataset}.source is {dp.source!r}: nothing to generate; "
@@ -37,8 +34,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         out = generate_dataset(params, args.dataset, Path(args.out) / args.dataset)
     except ParamsError as err:
-        print(err, file=sys.stderr)
-        return 2
+        sys.exit(f"error: {err}")
     ep = next(e for e in plan_episodes(params, args.dataset) if e["split"] == "test")
     rec = None
     for rec in render_episode(params.world, ep["town"], ep["seed"], min(2, ep["frames"]),

@@ -11,10 +11,7 @@ import argparse
 import logging
 import sys
 
-try:  # python -m pipeline.<stage> or python pipeline/<stage>.py
-    from ._common import start
-except ImportError:
-    from _common import start  # type: ignore[no-redef]
+from ._common import start
 
 from compact_perception.nuscenes.ingest import NuScenesInputError, ingest_from_params
 

@@ -10,10 +10,7 @@ import argparse
 import logging
 import sys
 
-try:  # python -m pipeline.<stage> or python pipeline/<stage>.py
-    from ._common import start
-except ImportError:
-    from _common import start  # type: ignore[no-redef]
+from ._common import start
 
 from compact_perception.nuscenes.export import export_nuscenes_sim
 

@@ -13,11 +13,7 @@ from pathlib import Path
 from compact_perception.cache import CacheError
 from compact_perception.preprocess import RecordError, preprocess_dataset
 
-try:  # run as `python -m pipeline.preprocess` (dvc.yaml) or as a script
-    from pipeline._common import start
-except ImportError:  # pragma: no cover
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-    from pipeline._common import start
+from ._common import start
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -50,7 +50,6 @@ from __future__ import annotations
 
 import contextlib
 import io
-
 import logging
 import math
 import time
