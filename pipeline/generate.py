@@ -24,9 +24,15 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     params = start(args.params)
     dp = getattr(params.datasets, args.dataset)
-    if dp.source != "sim":
-        print(f"datasets.{args.dataset}.source is {dp.source!r}: nothing to generate; "
-              f"the preprocess stage reads authors_root ({dp.authors_root}) directly", file=sys.stderr)
+    if dp.source == "authors":
+        from compact_perception.authors import describe_authors_dataset
+        from compact_perception.preprocess import RecordError
+
+        try:
+            describe_authors_dataset(dp.authors_root, args.dataset, Path(args.out) / args.dataset,
+                                     Path(args.figure_dir) / f"world_{args.dataset}.png")
+        except RecordError as err:
+            sys.exit(f"error: {err}")
         return 0
     from compact_perception.world.figure import save_frame_figure
     from compact_perception.world.generate import generate_dataset, plan_episodes, render_episode

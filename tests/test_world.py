@@ -280,16 +280,28 @@ def test_plan_c_splits_by_episode(params_dict):
     assert {e["town"] for e in plan if e["split"] == "train"} == {f"town0{k}" for k in range(1, 6)}
 
 
-def test_pipeline_authors_source_exits_cleanly(params_dict, tmp_path: Path, root: Path):
+def test_generate_stage_with_authors_source(params_dict, tmp_path: Path, root: Path):
+    """source: authors renders nothing: the stage points at the data and draws its first test frame."""
+    import json
     import subprocess
     import sys
 
     import yaml
+    from fixtures_raw import make_authors_layout
 
+    make_authors_layout(tmp_path / "authors")
     params_dict["datasets"]["A"].update({"source": "authors", "authors_root": str(tmp_path / "authors")})
     pf = tmp_path / "params.yaml"
     pf.write_text(yaml.safe_dump(params_dict))
-    r = subprocess.run([sys.executable, str(root / "pipeline" / "generate.py"), "--dataset", "A", "--params", str(pf),
-                        "--out", str(tmp_path / "raw")], capture_output=True, text=True, timeout=120)
-    assert r.returncode == 0 and "authors_root" in r.stderr
-    assert not (tmp_path / "raw").exists()
+    r = subprocess.run([sys.executable, "-m", "pipeline.generate", "--dataset", "A", "--params", str(pf),
+                        "--out", str(tmp_path / "raw"), "--figure-dir", str(tmp_path / "fig")],
+                       capture_output=True, text=True, timeout=120, cwd=root)
+    assert r.returncode == 0, r.stderr
+    manifest = json.loads((tmp_path / "raw" / "A" / "manifest.json").read_text())
+    assert manifest["source"] == "authors" and len(manifest["splits"]["train"]) == 3
+    assert (tmp_path / "fig" / "world_A.png").read_bytes()[:4] == b"\x89PNG"
+    params_dict["datasets"]["A"]["authors_root"] = str(tmp_path / "missing")
+    pf.write_text(yaml.safe_dump(params_dict))
+    r = subprocess.run([sys.executable, "-m", "pipeline.generate", "--dataset", "A", "--params", str(pf),
+                        "--out", str(tmp_path / "raw2")], capture_output=True, text=True, timeout=120, cwd=root)
+    assert r.returncode != 0 and "authors_root" in r.stderr and not (tmp_path / "raw2").exists()

@@ -200,3 +200,31 @@ def ingest_authors(root: str | os.PathLike | None, out_dir: str | os.PathLike, d
         with mp.get_context("fork").Pool(workers) as pool:
             return write_cache(out_dir, {s: _iter_split(t, pool, f"{dataset_id} {s}") for s, t in tasks.items()}, meta)
     return write_cache(out_dir, {s: _iter_split(t, None, f"{dataset_id} {s}") for s, t in tasks.items()}, meta)
+
+
+def describe_authors_dataset(root: str | os.PathLike | None, dataset_id: str, out_dir: str | os.PathLike,
+                             figure_path: str | os.PathLike) -> Path:
+    """The ``generate`` stage for ``source: authors``: nothing is rendered, so it writes a
+    manifest that points at ``root`` (with the split sizes of ``data_info.yml``) and a
+    Fig. 1-like figure of the first test frame, read through :func:`convert_frame`."""
+    from . import io
+    from .report.figures import plot_qualitative
+
+    if root is None or not Path(root).is_dir():
+        raise RecordError(f"datasets.{dataset_id}.authors_root: {root!r} is not a directory")
+    info = read_data_info(root)
+    n_seg, n_bev = len(info["seg_classes"]), len(info["bird_classes"])
+    splits = {split: split_frame_ids(root, info, split)[1] for split in SPLIT_DIRS}
+    test_dir, test_ids = split_frame_ids(root, info, "test")
+    frame = convert_frame(test_dir, test_ids[0], n_seg, n_bev)
+    inputs = {k: np.asarray(frame[k])[None] for k in ("rgb", "dvs", "lidar")}
+    inputs.update({f"gt_{k}": np.asarray(frame[k])[None] for k in ("de", "ss", "ls", "bevp")})
+    inputs["frame_ids"] = np.array([test_ids[0]])
+    plot_qualitative(dataset_id, inputs, {}, Path(figure_path), frame=0, models=[],
+                     title=f"dataset {dataset_id}: authors' CARLA data, test frame {test_ids[0]}")
+    with io.atomic_dir(out_dir) as tmp:
+        io.write_json(tmp / "manifest.json", {
+            "dataset": dataset_id, "source": "authors", "authors_root": str(Path(root).resolve()),
+            "splits": splits, "seg_classes": list(info["seg_classes"]), "bev_classes": list(info["bird_classes"]),
+        })
+    return Path(out_dir)

@@ -1,0 +1,202 @@
+"""The whole pipeline, end to end, with `dvc repro` at a tiny scale in a temporary copy.
+
+One module-scoped run (every dataset and model) serves several checks:
+- every stage runs; every Table II cell and figure exists; table numbers equal metrics files;
+- a second `dvc repro` does nothing;
+- a parameter only dataset C uses changes only C's first stage; a preprocessing parameter
+  changes preprocessing and nothing before it;
+- changing one MGN parameter retrains and re-evaluates only the MGN runs, then the report;
+- a training stage killed mid-run continues from its last finished epoch.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+
+pytestmark = pytest.mark.slow
+
+DATASETS = ("A", "B", "C", "nuscenes")
+MODELS = ("compact_1l", "compact_15l", "compact_15l_mgn", "gradnorm_segnet", "polarnet", "chen_bev")
+TASK_KEYS = {
+    "compact_1l": {"mae_de", "iou_ss", "iou_ls", "iou_bevp", "tm", "mv"},
+    "compact_15l": {"mae_de", "iou_ss", "iou_ls", "iou_bevp", "tm", "mv"},
+    "compact_15l_mgn": {"mae_de", "iou_ss", "iou_ls", "iou_bevp", "tm", "mv"},
+    "gradnorm_segnet": {"mae_de", "iou_ss"},
+    "polarnet": {"iou_ls"},
+    "chen_bev": {"iou_bevp"},
+}
+
+
+def tiny(params: dict) -> dict:
+    """Shrink every scale knob so the whole pipeline runs in a few minutes on 2 cores."""
+    params["world"]["resolution"] = {"default": 32, "paper": 128}
+    params["world"]["lidar"]["horizontal_samples"] = 256
+    params["world"]["frames_per_episode"] = 2
+    params["world"]["workers"] = 1
+    for ds in ("A", "B", "C"):
+        params["datasets"][ds]["frames"]["default"] = 10
+    params["datasets"]["nuscenes"]["sim_scenes"]["default"] = 5
+    params["datasets"]["nuscenes"]["sim_samples_per_scene"] = 2
+    params["preprocess"]["workers"] = 1
+    params["train"]["max_epochs"]["default"] = 2
+    params["train"]["batch_size"] = 2
+    params["train"]["num_workers"] = 0
+    params["benchmark"] = {"warmup": 1, "runs": 3}
+    return params
+
+
+def dvc_env(tmp: Path) -> dict:
+    env = dict(os.environ)
+    env.update({
+        "DVC_NO_ANALYTICS": "1", "HOME": str(tmp / "home"), "DVC_GLOBAL_CONFIG_DIR": str(tmp / "dvc-global"),
+        "DVC_SYSTEM_CONFIG_DIR": str(tmp / "dvc-system"), "DVC_SITE_CACHE_DIR": str(tmp / "dvc-site"),
+        "PATH": f"{Path(sys.executable).parent}{os.pathsep}{env.get('PATH', '')}",
+        "GIT_AUTHOR_NAME": "t", "GIT_AUTHOR_EMAIL": "t@t", "GIT_COMMITTER_NAME": "t", "GIT_COMMITTER_EMAIL": "t@t",
+    })
+    env["PYTHONPATH"] = os.pathsep.join([str(tmp / "repo" / "src"), str(tmp / "repo")])
+    return env
+
+
+def run(cmd: list[str], cwd: Path, env: dict, check: bool = True) -> str:
+    proc = subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True)
+    out = proc.stdout + proc.stderr
+    if check and proc.returncode:
+        raise AssertionError(f"{' '.join(cmd)} failed ({proc.returncode}):\n{out[-6000:]}")
+    return out
+
+
+def ran_stages(log: str) -> set[str]:
+    return set(re.findall(r"Running stage '([^']+)'", log))
+
+
+def set_param(repo: Path, path: tuple[str, ...], value) -> None:
+    params = yaml.safe_load((repo / "params.yaml").read_text())
+    node = params
+    for k in path[:-1]:
+        node = node[k]
+    node[path[-1]] = value
+    (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+
+
+def changed_stages(repo: Path, env: dict) -> set[str]:
+    return set(json.loads(run(["dvc", "status", "--json"], repo, env)).keys())
+
+
+@pytest.fixture(scope="module")
+def pipeline(tmp_path_factory, root: Path):
+    tmp = tmp_path_factory.mktemp("e2e")
+    repo = tmp / "repo"
+    files = subprocess.run(["git", "ls-files", "-co", "--exclude-standard"], cwd=root, capture_output=True,
+                           text=True, check=True).stdout.split()
+    for f in files:
+        src = root / f
+        if src.is_file() and not f.startswith(("reports/", "data/", "runs/", "results/")) or f == "data/.gitignore":
+            (repo / f).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(src, repo / f)
+    (repo / "dvc.lock").unlink(missing_ok=True)
+    params = tiny(yaml.safe_load((repo / "params.yaml").read_text()))
+    (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    env = dvc_env(tmp)
+    for cmd in (["git", "init", "-q"], ["git", "add", "-A"], ["git", "commit", "-qm", "tiny"]):
+        run(cmd, repo, env)
+    log = run(["dvc", "repro"], repo, env)
+    return repo, env, log
+
+
+def test_every_stage_ran_and_outputs_exist(pipeline):
+    repo, env, log = pipeline
+    stages = ran_stages(log)
+    for ds in DATASETS:
+        for m in MODELS:
+            assert f"train@{ds}-{m}" in stages and f"evaluate@{ds}-{m}" in stages
+            metrics = json.loads((repo / "results" / ds / m / "metrics.json").read_text())
+            assert {k for k in metrics if isinstance(metrics[k], dict)} == TASK_KEYS[m], (ds, m)
+    for ds in ("A", "B", "C"):
+        assert f"generate@{ds}" in stages and (repo / "data/raw" / ds / "manifest.json").is_file()
+        assert (repo / "reports/figures" / f"world_{ds}.png").is_file()
+        assert (repo / "reports/figures" / f"lidar_preprocessing_{ds}.png").is_file()
+    for name in ("index.md", "tables/table2.md", "tables/table2.tex", "tables/table2.csv", "tables/table3.md",
+                 "tables/paper_vs_reproduced.md"):
+        assert (repo / "reports" / name).is_file(), name
+    for ds in DATASETS:
+        for fig in (f"loss_weights_{ds}.png", f"qualitative_{ds}.png", f"curves_{ds}.png"):
+            assert (repo / "reports/figures/report" / fig).is_file(), fig
+    assert "simulated nuScenes-format" in (repo / "reports/index.md").read_text()
+
+
+def test_table_numbers_equal_metrics_files(pipeline):
+    repo, _, _ = pipeline
+    rows = list(csv.DictReader((repo / "reports/tables/table2.csv").open()))
+    checked = 0
+    for row in rows:
+        ds, model = row["dataset"], row["row_id"]
+        if model not in MODELS:
+            continue
+        metrics = json.loads((repo / "results" / ds / model / "metrics.json").read_text())
+        for key in TASK_KEYS[model] - {"tm", "mv"}:
+            assert float(row[f"{key}_mean"]) == pytest.approx(metrics[key]["mean"], abs=1e-9), (ds, model, key)
+            checked += 1
+    assert checked == 4 * (3 * 4 + 2 + 1 + 1)
+
+
+def test_second_repro_does_nothing(pipeline):
+    repo, env, _ = pipeline
+    assert ran_stages(run(["dvc", "repro"], repo, env)) == set()
+
+
+def test_parameter_changes_touch_only_their_stages(pipeline):
+    repo, env, _ = pipeline
+    original = (repo / "params.yaml").read_text()
+    try:
+        set_param(repo, ("datasets", "C", "seed_offset"), 7)
+        assert changed_stages(repo, env) == {"generate@C"}
+        (repo / "params.yaml").write_text(original)
+        set_param(repo, ("preprocess", "fill_neighbours"), False)
+        assert changed_stages(repo, env) == {"preprocess@A", "preprocess@B", "preprocess@C", "ingest_nuscenes"}
+    finally:
+        (repo / "params.yaml").write_text(original)
+    assert changed_stages(repo, env) == set()
+
+
+def test_mgn_parameter_reruns_only_mgn_runs_and_report(pipeline):
+    repo, env, _ = pipeline
+    set_param(repo, ("train", "models", "compact_15l_mgn", "mgn", "alpha"), 1.2)
+    log = run(["dvc", "repro"], repo, env)
+    expected = {f"{s}@{ds}-compact_15l_mgn" for s in ("train", "evaluate") for ds in DATASETS} | {"report"}
+    assert ran_stages(log) == expected
+
+
+def test_killed_training_resumes_from_last_epoch(pipeline):
+    repo, env, _ = pipeline
+    set_param(repo, ("train", "models", "compact_1l", "lr"), 0.05)
+    set_param(repo, ("train", "models", "compact_1l", "max_epochs"), {"default": 4, "paper": 4})
+    last = repo / "runs/A/compact_1l/last.pt"
+    before = last.stat().st_mtime_ns
+    proc = subprocess.Popen(["dvc", "repro", "train@A-compact_1l"], cwd=repo, env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    deadline = time.time() + 300
+    while time.time() < deadline and (not last.exists() or last.stat().st_mtime_ns == before):
+        time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    import torch
+
+    epoch_done = torch.load(last, weights_only=False)["epoch"]
+    assert epoch_done < 3, "the run finished before it could be killed"
+    log = run(["dvc", "repro", "train@A-compact_1l"], repo, env)
+    assert f"resuming after epoch {epoch_done}" in log
+    summary = json.loads((repo / "runs/A/compact_1l/summary.json").read_text())
+    assert summary["epochs_run"] == 4
+    steps = (repo / "runs/A/compact_1l/live/plots/metrics/lr.tsv").read_text().split()[2::2]
+    assert steps == ["0", "1", "2", "3"]
