@@ -117,6 +117,16 @@ def make_loader(
     )
 
 
+def set_epoch(loader: DataLoader, epoch: int, seed: int) -> None:
+    """Fix the shuffling order of ``epoch`` (seed + epoch): the same on every run and after a
+    resume, without rebuilding the loader and its worker processes."""
+    sampler = loader.sampler
+    if isinstance(sampler, DistributedSampler):
+        sampler.set_epoch(epoch)
+    elif isinstance(sampler, RandomSampler) and sampler.generator is not None:
+        sampler.generator.manual_seed(seed + epoch)
+
+
 def one_hot(index: torch.Tensor, num_classes: int, dim: int, dtype: torch.dtype = torch.float32) -> torch.Tensor:
     """Expand a uint8 class-index tensor into a one-hot tensor along new axis ``dim``; 255 -> all zeros."""
     idx = index.long()

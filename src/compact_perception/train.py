@@ -34,7 +34,7 @@ from tqdm.auto import tqdm
 from . import distributed as ddp
 from . import io
 from .config import ModelRecipe, Params
-from .data import make_loader, to_device
+from .data import make_loader, set_epoch, to_device
 from .metrics import compute_metrics
 from .models import build_model
 from .schedule import EarlyStop, Plateau
@@ -238,6 +238,11 @@ def train_run(
     live = Live(str(out_dir / "live"), dvcyaml=False, save_dvc_exp=False, resume=start_epoch > 0) if dist_.is_main else None
     val_loader = make_loader(cache_dir, "val", lidar_channels, per_rank_batch, shuffle=False, seed=seed,
                              num_workers=tp.num_workers, drop_last=False, distributed=dist_.enabled)
+    train_loader = make_loader(cache_dir, "train", lidar_channels, per_rank_batch, shuffle=True, seed=seed,
+                               num_workers=tp.num_workers, drop_last=True, distributed=dist_.enabled)
+    n_steps = len(train_loader)
+    if n_steps == 0:
+        raise ValueError(f"{cache_dir}/train: fewer frames than one batch of {per_rank_batch}")
     t_start = time.perf_counter()
     elapsed_before = state["elapsed_s"] if state is not None else 0.0
     stop = bool(state and state.get("stopped_early"))
@@ -247,10 +252,7 @@ def train_run(
         if stop:
             break
         _set_lr(optimizer, lr)
-        train_loader = make_loader(cache_dir, "train", lidar_channels, per_rank_batch, shuffle=True,
-                                   seed=seed + epoch, num_workers=tp.num_workers, drop_last=True,
-                                   distributed=dist_.enabled)
-        n_steps = len(train_loader)
+        set_epoch(train_loader, epoch, seed)
         model.train()
         acc = _Mean()
         bar = tqdm(train_loader, desc=f"{dataset_id}/{model_id} epoch {epoch + 1}/{max_epochs}",
