@@ -27,7 +27,7 @@ __all__ = [
 ]
 
 
-def _as_views(x: Tensor) -> Tensor:
+def as_views(x: Tensor) -> Tensor:
     """(B,C,H,W) -> (B,1,C,H,W); (B,V,C,H,W) unchanged."""
     if x.dim() == 4:
         return x.unsqueeze(1)
@@ -66,8 +66,8 @@ def bce_dice_loss(pred: Tensor, target: Tensor, eps: float = 1e-7) -> Tensor:
     ``Dice_v = (2 sum(p y) + eps) / (sum p + sum y + eps)`` over the same elements (the
     eps smoothing makes an empty target with an empty prediction a perfect Dice of 1).
     """
-    p = _as_views(pred)
-    y = _as_views(target).to(p.dtype)
+    p = as_views(pred)
+    y = as_views(target).to(p.dtype)
     pc = p.clamp(eps, 1.0 - eps)
     bce = -(y * torch.log(pc) + (1.0 - y) * torch.log(1.0 - pc))  # (B,V,C,H,W)
     dims = (0, 2, 3, 4)

@@ -20,6 +20,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from .losses import as_views
+
 __all__ = [
     "TASKS",
     "mae",
@@ -35,15 +37,6 @@ __all__ = [
 
 TASKS = ("de", "ss", "ls", "bevp")
 Number = Union[float, Tensor, np.ndarray]
-
-
-def _as_views(x: Tensor) -> Tensor:
-    """(B,C,H,W) -> (B,1,C,H,W); (B,V,C,H,W) unchanged."""
-    if x.dim() == 4:
-        return x.unsqueeze(1)
-    if x.dim() == 5:
-        return x
-    raise ValueError(f"expected a (B,C,H,W) or (B,V,C,H,W) tensor, got shape {tuple(x.shape)}")
 
 
 @torch.no_grad()
@@ -68,8 +61,8 @@ def _iou_from_counts(inter: Tensor, union: Tensor) -> Tensor:
 @torch.no_grad()
 def iou_per_sample(pred: Tensor, target: Tensor, threshold: float = 0.5) -> Tensor:
     """Eq. (5) per sample: (B,) IoU per view over the view's whole one-hot tensor, averaged over views."""
-    p = _as_views(pred.detach()) > threshold
-    g = _as_views(target.detach()) > threshold
+    p = as_views(pred.detach()) > threshold
+    g = as_views(target.detach()) > threshold
     inter = (p & g).sum(dim=(2, 3, 4)).double()  # (B,V)
     union = (p | g).sum(dim=(2, 3, 4)).double()
     return _iou_from_counts(inter, union).mean(dim=1)
@@ -79,8 +72,8 @@ def iou_per_sample(pred: Tensor, target: Tensor, threshold: float = 0.5) -> Tens
 def iou(pred: Tensor, target: Tensor, threshold: float = 0.5) -> Tensor:
     """Eq. (5): per view, ``|p>t AND g>t| / |p>t OR g>t|`` over the view's tensor pooled over
     the batch, then the mean over views (scalar, float64). Empty union -> 1.0."""
-    p = _as_views(pred.detach()) > threshold
-    g = _as_views(target.detach()) > threshold
+    p = as_views(pred.detach()) > threshold
+    g = as_views(target.detach()) > threshold
     inter = (p & g).sum(dim=(0, 2, 3, 4)).double()  # (V,)
     union = (p | g).sum(dim=(0, 2, 3, 4)).double()
     return _iou_from_counts(inter, union).mean()
