@@ -63,6 +63,8 @@ def test_interrupted_run_resumes_to_the_same_result(tmp_path, params_dict):
     assert torch.load(tmp_path / "cut" / "last.pt", weights_only=False)["epoch"] == 0
     resumed = train_run(params, "A", "compact_15l_mgn", cache, tmp_path / "cut")
     assert resumed["epochs_run"] == full["epochs_run"] == 3
+    assert resumed["untrained_val_score"] == pytest.approx(full["untrained_val_score"], abs=1e-9)
+    assert 0.0 < full["untrained_val_score"] < 4.0  # TM of the Kaiming-initialised network, recorded once
     assert resumed["best_val_score"] == pytest.approx(full["best_val_score"], abs=1e-6)
     assert resumed["final_weights"] == pytest.approx(full["final_weights"], abs=1e-6)
     # every epoch logged once, in order, for every task loss, metric, lr and weight

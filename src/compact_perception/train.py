@@ -207,6 +207,7 @@ def train_run(
 
     # ---------------------------------------------------------------- resume or start
     start_epoch, history, best_score, best_epoch, lr = 0, [], math.inf, -1, recipe.lr
+    untrained_score = None
     last_path, best_path, summary_path = out_dir / "last.pt", out_dir / "best.pt", out_dir / "summary.json"
     state = None
     if last_path.exists():
@@ -232,12 +233,17 @@ def train_run(
         stopper.load_state_dict(state["stopper"])
         start_epoch, history = state["epoch"] + 1, state["history"]
         best_score, best_epoch, lr = state["best_score"], state["best_epoch"], state["lr"]
+        untrained_score = state.get("untrained_score")
         torch.set_rng_state(state["torch_rng"])
         log.info("%s: resuming after epoch %d", out_dir, state["epoch"])
 
     live = Live(str(out_dir / "live"), dvcyaml=False, save_dvc_exp=False, resume=start_epoch > 0) if dist_.is_main else None
     val_loader = make_loader(cache_dir, "val", lidar_channels, per_rank_batch, shuffle=False, seed=seed,
                              num_workers=tp.num_workers, drop_last=False, distributed=dist_.enabled)
+    if untrained_score is None:  # the reference that training must beat (Kaiming-initialised network)
+        untrained_score = selection_score(
+            ddp.average_scalars(evaluate_split(model, val_loader, device, spec, dtype), dist_, len(val_loader)))
+        log.info("%s/%s untrained val score %.4f", dataset_id, model_id, untrained_score)
     train_loader = make_loader(cache_dir, "train", lidar_channels, per_rank_batch, shuffle=True, seed=seed,
                                num_workers=tp.num_workers, drop_last=True, distributed=dist_.enabled)
     n_steps = len(train_loader)
@@ -309,6 +315,7 @@ def train_run(
                     "best_score": best_score, "best_epoch": best_epoch, "lr": lr,
                     "torch_rng": torch.get_rng_state(), "stopped_early": stop,
                     "elapsed_s": elapsed_before + time.perf_counter() - t_start, "finished": False,
+                    "untrained_score": untrained_score,
                 }, tmp)
         ddp.barrier(dist_)
         epochs_this_call += 1
@@ -320,6 +327,7 @@ def train_run(
 
     summary = {
         "dataset": dataset_id, "model": model_id, "best_epoch": best_epoch, "best_val_score": best_score,
+        "untrained_val_score": untrained_score,
         "epochs_run": len(history), "max_epochs": max_epochs, "stopped_early": stop,
         "train_seconds": round(elapsed_before + time.perf_counter() - t_start, 2),
         "params": int(sum(p.numel() for p in model.parameters())), "world_size": dist_.world_size,
