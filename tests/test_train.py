@@ -85,7 +85,7 @@ def _free_port() -> int:
 
 @pytest.mark.slow
 def test_two_process_gloo_matches_one_process(tmp_path, params_dict, root):
-    """Same global batch (4): 1 process x 4 vs 2 processes x 2 under torchrun (gloo).
+    """Same global batch (4): 1 process x 4 vs 2 processes x 2 under torchrun (gloo), with MGN.
 
     BatchNorm statistics are per process (as with DDP), so the runs agree within a
     tolerance rather than exactly: validation scores within 5 % relative after 2 epochs.
@@ -99,7 +99,7 @@ def test_two_process_gloo_matches_one_process(tmp_path, params_dict, root):
     (tmp_path / "params.yaml").write_text(yaml.safe_dump(params_dict))
     cache = make_cache(tmp_path / "cache", counts=(8, 4, 2))
     env = {**os.environ, "PYTHONPATH": str(root), "OMP_NUM_THREADS": "1"}
-    common = ["-m", "pipeline.train", "--dataset", "A", "--model", "compact_1l",
+    common = ["-m", "pipeline.train", "--dataset", "A", "--model", "compact_15l_mgn",
               "--params", str(tmp_path / "params.yaml"), "--cache", str(cache)]
     subprocess.run([sys.executable, *common, "--out", str(tmp_path / "one")], check=True, env=env, cwd=root)
     subprocess.run([sys.executable, "-m", "torch.distributed.run", "--nnodes=1", "--nproc_per_node=2",
@@ -110,3 +110,6 @@ def test_two_process_gloo_matches_one_process(tmp_path, params_dict, root):
     assert two["world_size"] == 2 and one["world_size"] == 1
     assert two["epochs_run"] == one["epochs_run"] == 2
     assert two["best_val_score"] == pytest.approx(one["best_val_score"], rel=0.05)
+    # MGN weights are averaged across ranks after every update: one set, summing to T = 4
+    assert sum(two["final_weights"].values()) == pytest.approx(4.0)
+    assert two["final_weights"] == pytest.approx(one["final_weights"], rel=0.05)

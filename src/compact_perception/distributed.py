@@ -71,13 +71,13 @@ def average_scalars(values: dict[str, float], d: Dist, weight: float = 1.0) -> d
     return {k: float(t[i] / t[-1]) for i, k in enumerate(keys)}
 
 
-def broadcast_object(obj, d: Dist):
-    """Send rank 0's ``obj`` to every rank."""
+def average_tensor(t: torch.Tensor, d: Dist) -> torch.Tensor:
+    """Mean of ``t`` over ranks (a copy; ``t`` itself is left as it is)."""
     if not d.enabled:
-        return obj
-    box = [obj]
-    dist.broadcast_object_list(box, src=0)
-    return box[0]
+        return t
+    out = t.detach().clone()
+    dist.all_reduce(out, op=dist.ReduceOp.SUM)
+    return out / d.world_size
 
 
 def barrier(d: Dist) -> None:

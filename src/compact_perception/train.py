@@ -271,6 +271,8 @@ def train_run(
                 losses = model.compute_losses(out, batch)
             losses = {k: v.float() if use_amp else v for k, v in losses.items()}
             weighting.before_backward(step, n_steps, losses, model)
+            if dist_.enabled:  # each rank's update saw its own batch: agree on the mean weights
+                weighting.set_weights(ddp.average_tensor(weighting.w, dist_))
             total = weighting.total(losses)
             scaler.scale(total).backward()
             if use_amp:

@@ -82,7 +82,11 @@ class LossWeighting:
     def load_state_dict(self, state: Mapping[str, Any]) -> None:
         if list(state["tasks"]) != list(self.tasks):
             raise ValueError(f"state is for tasks {state['tasks']}, this weighting has {list(self.tasks)}")
-        self.w = torch.tensor(state["w"], dtype=torch.float64)
+        self.set_weights(torch.tensor(state["w"], dtype=torch.float64))
+
+    def set_weights(self, w: Tensor) -> None:
+        """Overwrite the loss weights (resume; agreement across data-parallel ranks)."""
+        self.w = w.detach().to(dtype=torch.float64).clone()
 
     def log_values(self) -> dict[str, float]:
         """Values to log each epoch: ``w_<task>`` (subclasses add ``lr_w``)."""

@@ -66,6 +66,9 @@ class GradNormWeighting(GradNormCore):
 
     def load_state_dict(self, state: Mapping[str, Any]) -> None:
         super().load_state_dict(state)
+        self.opt.load_state_dict(state["optimizer"])
+
+    def set_weights(self, w: Tensor) -> None:
+        super().set_weights(w)
         with torch.no_grad():
             self._param.copy_(self.w)
-        self.opt.load_state_dict(state["optimizer"])
