@@ -57,7 +57,5 @@ def plot_lidar_layers(
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    with cio.atomic_path(out_path) as tmp:
-        fig.savefig(tmp, format="png", dpi=110)
-    plt.close(fig)
+    cio.write_figure(fig, out_path, dpi=110)
     log.info("wrote %s", out_path)

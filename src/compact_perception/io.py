@@ -74,6 +74,19 @@ def write_npz(path: str | os.PathLike, arrays: dict[str, np.ndarray], compress: 
     write_bytes(path, npz_bytes(arrays, compress))
 
 
+def write_figure(fig: Any, path: str | os.PathLike, dpi: int = 100, tight: bool = False) -> Path:
+    """Render a matplotlib figure to PNG and write it atomically; the figure is closed."""
+    import matplotlib.pyplot as plt
+
+    buf = _io.BytesIO()
+    try:
+        fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight" if tight else None)
+    finally:
+        plt.close(fig)
+    write_bytes(path, buf.getvalue())
+    return Path(path)
+
+
 @contextlib.contextmanager
 def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
     """Build a directory under a temporary sibling name; swap it into place on success.

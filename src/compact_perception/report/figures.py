@@ -7,7 +7,6 @@ and the ego's left is on the left of the picture.
 """
 from __future__ import annotations
 
-import io as _io
 import logging
 from pathlib import Path
 from typing import Any, Mapping, Optional, Sequence
@@ -87,14 +86,8 @@ def topview(img: np.ndarray) -> np.ndarray:
 
 
 def save_figure(fig: "plt.Figure", path: Path, dpi: int = 100) -> Path:
-    """Render to PNG bytes and write atomically; closes the figure."""
-    buf = _io.BytesIO()
-    try:
-        fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
-    finally:
-        plt.close(fig)
-    io.write_bytes(path, buf.getvalue())
-    return Path(path)
+    """Write a report figure (tight bounding box) atomically; closes the figure."""
+    return io.write_figure(fig, path, dpi=dpi, tight=True)
 
 
 # ----------------------------------------------------------------------------- Fig. 8

@@ -72,6 +72,4 @@ def save_frame_figure(rec: dict, path: str | Path, range_m: float = 32.0, title:
     if title:
         fig.suptitle(title, fontsize=9)
     fig.tight_layout()
-    with io.atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=90)
-    plt.close(fig)
+    io.write_figure(fig, path, dpi=90)
