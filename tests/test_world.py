@@ -272,6 +272,8 @@ def test_intrinsics_extrinsics():
 
 
 def test_plan_c_splits_by_episode(params_dict):
+    params_dict["datasets"]["C"]["frames"]["default"] = 200
+    params_dict["world"]["frames_per_episode"] = 20
     p = parse_params(params_dict)
     plan = gen.plan_episodes(p, "C")
     n = {s: sum(e["frames"] for e in plan if e["split"] == s) for s in ("train", "val", "test")}
