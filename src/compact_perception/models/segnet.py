@@ -20,6 +20,8 @@ loss for DE, averaged over the 4 views.  S must be divisible by 32 for exact unp
 """
 from __future__ import annotations
 
+from typing import Sequence
+
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
@@ -34,27 +36,26 @@ def _cbr(in_ch: int, out_ch: int) -> nn.Sequential:
     return nn.Sequential(nn.Conv2d(in_ch, out_ch, 3, padding=1), nn.BatchNorm2d(out_ch), nn.ReLU(inplace=True))
 
 
+def _stages(stages: Sequence[Sequence[int]], in_ch: int) -> tuple[nn.ModuleList, int]:
+    """One ``nn.Sequential`` of conv-BN-ReLU layers per stage (output channels listed per
+    layer); returns the stages and the channel count they end with."""
+    out, c = [], in_ch
+    for stage in stages:
+        layers = []
+        for o in stage:
+            layers.append(_cbr(c, o))
+            c = o
+        out.append(nn.Sequential(*layers))
+    return nn.ModuleList(out), c
+
+
 class SegNet(nn.Module):
     """VGG16-BN encoder, symmetric SegNet decoder, 3x3 SS and DE heads (one view)."""
 
     def __init__(self, n_classes: int, in_ch: int = 3) -> None:
         super().__init__()
-        enc, c = [], in_ch
-        for stage in ENC_STAGES:
-            layers = []
-            for o in stage:
-                layers.append(_cbr(c, o))
-                c = o
-            enc.append(nn.Sequential(*layers))
-        self.encoder = nn.ModuleList(enc)
-        dec = []
-        for stage in DEC_STAGES:
-            layers = []
-            for o in stage:
-                layers.append(_cbr(c, o))
-                c = o
-            dec.append(nn.Sequential(*layers))
-        self.decoder = nn.ModuleList(dec)
+        self.encoder, c = _stages(ENC_STAGES, in_ch)
+        self.decoder, c = _stages(DEC_STAGES, c)
         self.head_ss = nn.Conv2d(64, n_classes, 3, padding=1)
         self.head_de = nn.Conv2d(64, 1, 3, padding=1)
 
