@@ -12,6 +12,7 @@ import sys
 
 from ._common import start
 
+from compact_perception import io
 from compact_perception.nuscenes.export import export_nuscenes_sim
 
 
@@ -22,8 +23,12 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     params = start(args.params)
     log = logging.getLogger("nuscenes_sim")
-    if params.datasets.nuscenes.dataroot:
-        log.info("datasets.nuscenes.dataroot is set (%s): no simulated set written", params.datasets.nuscenes.dataroot)
+    ns = params.datasets.nuscenes
+    if ns.dataroot:  # real data: record what ingest_nuscenes will read instead of simulating
+        log.info("datasets.nuscenes.dataroot is set (%s): no simulated set written", ns.dataroot)
+        with io.atomic_dir(args.out) as tmp:
+            io.write_json(tmp / "manifest.json", {"source": "nuScenes-lidarseg", "dataroot": ns.dataroot,
+                                                  "version": ns.version})
         return 0
     export_nuscenes_sim(params, args.out)
     return 0

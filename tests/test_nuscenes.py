@@ -292,3 +292,22 @@ def test_load_nuscenes_names_missing_table(tmp_path, sim_root):
     (root / "v1.0-sim" / "sample_data.json").unlink()
     with pytest.raises(NuScenesInputError, match="sample_data.json"):
         load_nuscenes(root, "v1.0-sim")
+
+
+def test_sim_stage_with_real_dataroot_records_it(tmp_path, params_dict, root):
+    """With a real dataroot the nuscenes_sim stage still writes its DVC output (a pointer)."""
+    import subprocess
+    import sys
+
+    import yaml
+
+    params_dict["datasets"]["nuscenes"]["dataroot"] = str(tmp_path / "nuscenes")
+    (tmp_path / "params.yaml").write_text(yaml.safe_dump(params_dict))
+    out = tmp_path / "raw" / "nuscenes_sim"
+    r = subprocess.run([sys.executable, "-m", "pipeline.nuscenes_sim", "--params", str(tmp_path / "params.yaml"),
+                        "--out", str(out)], capture_output=True, text=True, timeout=120, cwd=root)
+    assert r.returncode == 0, r.stderr
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest == {"source": "nuScenes-lidarseg", "dataroot": str(tmp_path / "nuscenes"),
+                        "version": "v1.0-trainval"}
+    assert [p.name for p in out.iterdir()] == ["manifest.json"]
