@@ -8,6 +8,7 @@ import time
 from pathlib import Path
 
 from compact_perception.config import Params, ParamsError, load_params
+from compact_perception.params_audit import audited
 
 
 def start(params_path: str | Path = "params.yaml") -> Params:
@@ -17,6 +18,6 @@ def start(params_path: str | Path = "params.yaml") -> Params:
     atexit.register(lambda: logging.getLogger("pipeline").info("stage %s [%s] took %.1f s",
                                                                Path(sys.argv[0]).stem, argv, time.perf_counter() - t0))
     try:
-        return load_params(params_path)
+        return audited(load_params(params_path))
     except ParamsError as err:
         sys.exit(f"error: {err}")

@@ -6,7 +6,10 @@ One module-scoped run (every dataset and model) serves several checks:
 - a parameter only dataset C uses changes only C's first stage; a preprocessing parameter
   changes preprocessing and nothing before it;
 - changing one MGN parameter retrains and re-evaluates only the MGN runs, then the report;
-- a training stage killed mid-run continues from its last finished epoch.
+- a training stage killed mid-run continues from its last finished epoch;
+- every params key a stage reads is one of the stage's ``params:`` in dvc.yaml;
+- the README's experiment command works from a fresh shell (the venv not on PATH);
+- a change of library code reruns the stages that import it and changes their result.
 """
 from __future__ import annotations
 
@@ -65,6 +68,7 @@ def dvc_env(tmp: Path) -> dict:
         "GIT_AUTHOR_NAME": "t", "GIT_AUTHOR_EMAIL": "t@t", "GIT_COMMITTER_NAME": "t", "GIT_COMMITTER_EMAIL": "t@t",
     })
     env["PYTHONPATH"] = os.pathsep.join([str(tmp / "repo" / "src"), str(tmp / "repo")])
+    env["COMPACT_PERCEPTION_PARAMS_AUDIT"] = str(tmp / "params_audit.jsonl")  # every key each stage reads
     return env
 
 
@@ -195,8 +199,64 @@ def test_killed_training_resumes_from_last_epoch(pipeline):
     epoch_done = torch.load(last, weights_only=False)["epoch"]
     assert epoch_done < 3, "the run finished before it could be killed"
     log = run(["dvc", "repro", "train@A-compact_1l"], repo, env)
-    assert f"resuming after epoch {epoch_done}" in log
+    assert f"resuming after epoch {epoch_done + 1}" in log
     summary = json.loads((repo / "runs/A/compact_1l/summary.json").read_text())
     assert summary["epochs_run"] == 4
     steps = (repo / "runs/A/compact_1l/live/plots/metrics/lr.tsv").read_text().split()[2::2]
     assert steps == ["0", "1", "2", "3"]
+
+
+def _declared_params(repo: Path) -> dict[str, list[str]]:
+    """Each stage's resolved ``params:`` keys, as DVC itself expands dvc.yaml."""
+    from dvc.dependency.param import ParamsDependency
+    from dvc.repo import Repo
+
+    with Repo(str(repo)) as dvc_repo:
+        return {stage.name: [k for dep in stage.deps if isinstance(dep, ParamsDependency) for k in dep.params]
+                for stage in dvc_repo.index.stages}
+
+
+def test_every_params_key_a_stage_reads_is_declared(pipeline):
+    repo, env, _ = pipeline
+    declared = _declared_params(repo)
+    audit = [json.loads(line) for line in Path(env["COMPACT_PERCEPTION_PARAMS_AUDIT"]).read_text().splitlines()]
+    seen = set()
+    for entry in audit:
+        values = [a for a in entry["argv"] if not a.startswith("-")]
+        name = entry["stage"] + (f"@{'-'.join(values)}" if values else "")
+        assert name in declared, f"audited stage {name} not in dvc.yaml"
+        seen.add(name)
+        undeclared = [k for k in entry["keys"]
+                      if not any(k == d or k.startswith(d + ".") for d in declared[name])]
+        assert not undeclared, f"{name} reads params it does not declare in dvc.yaml: {undeclared}"
+    assert seen == set(declared), f"stages never audited: {sorted(set(declared) - seen)}"
+
+
+def test_readme_experiment_command_works_from_a_fresh_shell(pipeline, root):
+    """`bin/venv dvc exp run -S ...` as the README shows it, with no venv on PATH."""
+    repo, env, _ = pipeline
+    assert "bin/venv dvc exp run -S scale=paper" in (root / "README.md").read_text()
+    (repo / ".venv").symlink_to(root / ".venv")
+    fresh = {k: v for k, v in env.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
+    fresh["PATH"] = "/usr/local/bin:/usr/bin:/bin"
+    log = run(["bin/venv", "dvc", "exp", "run", "-S", "train.models.chen_bev.lr=0.0005"], repo, fresh)
+    assert ran_stages(log) == {f"{s}@{ds}-chen_bev" for s in ("train", "evaluate") for ds in DATASETS} | {"report"}
+
+
+def test_library_code_change_reruns_and_changes_the_result(pipeline):
+    """Halving the IoU in metrics.py: training and evaluation rerun, nothing is 'already complete',
+    and the metrics file changes (the issue's first reproduction)."""
+    repo, env, _ = pipeline
+    metrics_py = repo / "src/compact_perception/metrics.py"
+    before = json.loads((repo / "results/A/compact_1l/metrics.json").read_text())
+    text = metrics_py.read_text()
+    assert text.count("def iou(") == 1
+    metrics_py.write_text(text.replace("def iou(", "def _iou_exact(", 1) +
+                          "\n\ndef iou(*args, **kwargs):\n    return 0.5 * _iou_exact(*args, **kwargs)\n")
+    changed = changed_stages(repo, env)
+    assert {f"{s}@{ds}-{m}" for s in ("train", "evaluate") for ds in DATASETS for m in MODELS} <= changed
+    log = run(["dvc", "repro", "evaluate@A-compact_1l"], repo, env)
+    assert {"train@A-compact_1l", "evaluate@A-compact_1l"} <= ran_stages(log)
+    assert "already complete" not in log
+    after = json.loads((repo / "results/A/compact_1l/metrics.json").read_text())
+    assert after["iou_ss"]["mean"] != before["iou_ss"]["mean"]

@@ -98,6 +98,10 @@ def make_loader(
     sequence of epochs). With ``distributed`` a ``DistributedSampler(seed=seed)`` shards the
     split over ranks (call ``loader.sampler.set_epoch(epoch)`` each epoch). Worker processes
     stay alive between epochs (``persistent_workers``) when ``num_workers > 0``.
+
+    The loader never draws from the global torch RNG (it has a generator of its own for the
+    workers' base seed), so the global RNG that dropout uses follows the same sequence for
+    any ``num_workers`` and after a resume: worker counts cannot change a result.
     """
     ds = CacheDataset(cache_dir, split, lidar_channels)
     if distributed:
@@ -114,6 +118,7 @@ def make_loader(
         drop_last=drop_last,
         persistent_workers=num_workers > 0,
         pin_memory=pin_memory,
+        generator=torch.Generator().manual_seed(seed),
     )
 
 

@@ -1,0 +1,89 @@
+"""The same bytes on any x86-64 machine (AVX2-only or AVX-512/AMX): pinned numeric back-ends.
+
+Numeric libraries pick their kernels from the CPU they find, and the kernels round
+differently: numpy's AVX-512 code paths (SVML transcendental functions) differ from its
+AVX2/libm ones in the last bits, OpenBLAS picks a matrix kernel per core type (Haswell,
+Zen, SkylakeX, ...), PyTorch's ATen and oneDNN kernels differ between AVX2 and AVX-512,
+and every threaded reduction depends on the thread count. A different last bit in a
+ray-cast depth or a projected LiDAR point moves a pixel, and a different rounding in a
+convolution's gradient grows over an epoch, so the machine would decide a result.
+
+:func:`pin_numeric_libraries` removes the machine from the result by fixing each library
+to the same instruction-set ceiling, AVX2 with FMA, which every x86-64 machine this
+project targets has. It sets environment variables that the libraries read when they
+load (numpy, OpenBLAS) or at their first operation (ATen, oneDNN), so it runs before numpy
+is imported: :mod:`pipeline` (the stage package) calls it first thing, and child processes
+inherit it. The values replace what the environment says, since the environment is part of
+the machine. :func:`set_threads` fixes PyTorch's intra-op thread count from params
+(``train.num_threads``), so a 16-core machine computes like a 2-core one.
+
+A machine without AVX2 cannot honour the ceiling and may produce other bytes; it is
+outside what the project promises.
+"""
+from __future__ import annotations
+
+import os
+
+#: numpy 1.26's dispatchable AVX-512 targets (``numpy.core._multiarray_umath.__cpu_dispatch__``).
+NUMPY_AVX512 = ("AVX512F", "AVX512CD", "AVX512_KNL", "AVX512_KNM", "AVX512_SKX", "AVX512_CLX",
+                "AVX512_CNL", "AVX512_ICL")
+
+#: Environment that fixes every numeric back-end to AVX2 kernels and single-threaded BLAS.
+PINNED_ENV: dict[str, str] = {
+    "NPY_DISABLE_CPU_FEATURES": " ".join(NUMPY_AVX512),  # numpy: no AVX-512 loops (SVML)
+    "OPENBLAS_CORETYPE": "Haswell",                      # OpenBLAS: the AVX2+FMA kernels
+    "OPENBLAS_NUM_THREADS": "1",                         # OpenBLAS: no threaded splits
+    "ATEN_CPU_CAPABILITY": "avx2",                       # PyTorch ATen kernels
+    "ONEDNN_MAX_CPU_ISA": "AVX2",                        # oneDNN convolutions
+    "DNNL_MAX_CPU_ISA": "AVX2",                          # oneDNN's older name of the same
+    "MKL_CBWR": "COMPATIBLE",                            # MKL: vendor-independent results
+}
+
+
+#: Set to 1 to leave the machine's own kernels in place (the cross-machine test's control,
+#: or a speed comparison); results may then differ between machines.
+UNPINNED_ENV_VAR = "COMPACT_PERCEPTION_UNPINNED"
+
+
+def pin_numeric_libraries() -> None:
+    """Set :data:`PINNED_ENV` in this process (and so in its children).
+
+    Must run before numpy is imported; PyTorch reads its two variables at its first
+    operation, so importing torch earlier is harmless as long as no tensor op ran.
+    """
+    if os.environ.get(UNPINNED_ENV_VAR) == "1":
+        return
+    os.environ.update(PINNED_ENV)
+
+
+#: The pins PyTorch reads (at its first operation); :func:`release_torch_pins` lifts them.
+TORCH_PINS = ("ATEN_CPU_CAPABILITY", "ONEDNN_MAX_CPU_ISA", "DNNL_MAX_CPU_ISA")
+
+
+def release_torch_pins() -> None:
+    """Let PyTorch use the CPU's own kernels (bf16/AMX for mixed precision): only effective
+    before its first tensor operation, and results then depend on the machine."""
+    for key in TORCH_PINS:
+        os.environ.pop(key, None)
+
+
+def pin_opencv() -> None:
+    """Turn off OpenCV's run-time dispatched SIMD (AVX2/AVX-512) so its results do not
+    depend on the CPU; the baseline code path is the same everywhere."""
+    import cv2
+
+    if os.environ.get(UNPINNED_ENV_VAR) != "1":
+        cv2.setUseOptimized(False)
+
+
+def set_threads(n: int) -> None:
+    """Fix PyTorch's intra-op threads (a threaded reduction's result depends on the count)."""
+    import torch
+
+    if os.environ.get(UNPINNED_ENV_VAR) != "1":
+        torch.set_num_threads(int(n))
+
+
+def pins_in_effect() -> dict[str, str]:
+    """The pinned variables whose current value differs from :data:`PINNED_ENV` (empty = pinned)."""
+    return {k: os.environ.get(k, "<unset>") for k, v in PINNED_ENV.items() if os.environ.get(k) != v}

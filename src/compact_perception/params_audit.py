@@ -1,0 +1,117 @@
+"""Which params keys a stage reads: the check behind "every params key it reads is a dependency".
+
+With ``COMPACT_PERCEPTION_PARAMS_AUDIT=<file>`` in the environment, each stage's validated
+params are wrapped in :class:`ParamsView`, which records the dotted path of every key the
+stage reads, and the stage appends ``{"stage": ..., "argv": ..., "keys": [...]}`` as one JSON
+line to ``<file>`` when it exits. The end-to-end test runs ``dvc repro`` with it and compares
+each stage's keys with the ``params:`` that ``dvc.yaml`` lists for it. Without the variable
+nothing is wrapped; the audit never changes a result.
+"""
+from __future__ import annotations
+
+import atexit
+import json
+import os
+import sys
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel
+
+ENV_VAR = "COMPACT_PERCEPTION_PARAMS_AUDIT"
+
+
+class _Log:
+    def __init__(self) -> None:
+        self.keys: set[str] = set()
+
+    def add(self, path: str) -> None:
+        self.keys.add(path)
+
+
+def _join(path: str, key: str) -> str:
+    return f"{path}.{key}" if path else key
+
+
+def _wrap(value: Any, path: str, log: _Log) -> Any:
+    if isinstance(value, BaseModel):
+        return ParamsView(value, path, log)
+    if isinstance(value, Mapping):
+        return _MappingView(value, path, log)
+    return value
+
+
+class ParamsView:
+    """Read-only view of a params model that records each key read (``a.b.c``).
+
+    Reading a field records its path; ``model_dump`` records every field it dumps;
+    anything else (``Scaled.at``) is passed through, its path already recorded.
+    """
+
+    def __init__(self, model: BaseModel, path: str, log: _Log) -> None:
+        object.__setattr__(self, "_model", model)
+        object.__setattr__(self, "_path", path)
+        object.__setattr__(self, "_log", log)
+
+    def __getattr__(self, name: str) -> Any:
+        model, path, log = self._model, self._path, self._log
+        value = getattr(model, name)
+        if name in type(model).model_fields:
+            log.add(_join(path, name))
+            return _wrap(value, _join(path, name), log)
+        if name == "model_dump":
+            def dump(*args: Any, exclude: Any = None, **kwargs: Any) -> Any:
+                for field in type(model).model_fields:
+                    if not exclude or field not in exclude:
+                        log.add(_join(path, field))
+                return model.model_dump(*args, exclude=exclude, **kwargs)
+            return dump
+        return value
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        raise AttributeError("params are read-only")
+
+
+class _MappingView(Mapping):
+    """A dict-valued param (``train.models``) whose item reads are recorded per key."""
+
+    def __init__(self, data: Mapping, path: str, log: _Log) -> None:
+        self._data, self._path, self._log = data, path, log
+
+    def __getitem__(self, key: str) -> Any:
+        self._log.add(_join(self._path, str(key)))
+        return _wrap(self._data[key], _join(self._path, str(key)), self._log)
+
+    def __contains__(self, key: object) -> bool:
+        self._log.add(_join(self._path, str(key)))
+        return key in self._data
+
+    def __iter__(self):
+        self._log.add(self._path)  # listing the keys reads the whole mapping
+        return iter(self._data)
+
+    def __len__(self) -> int:
+        self._log.add(self._path)
+        return len(self._data)
+
+
+def audited(params: BaseModel) -> Any:
+    """``params`` itself, or a recording :class:`ParamsView` when the audit is on."""
+    target = os.environ.get(ENV_VAR)
+    if not target:
+        return params
+    log = _Log()
+
+    def _write() -> None:
+        line = {"stage": Path(sys.argv[0]).stem, "argv": sys.argv[1:], "keys": sorted(leaf_keys(log.keys))}
+        with open(target, "a") as fh:
+            fh.write(json.dumps(line) + "\n")
+
+    atexit.register(_write)
+    return ParamsView(params, "", log)
+
+
+def leaf_keys(keys: set[str]) -> set[str]:
+    """The most specific keys read (``a.b`` is dropped when ``a.b.c`` was read)."""
+    return {k for k in keys if not any(o.startswith(k + ".") for o in keys)}

@@ -1,0 +1,76 @@
+"""Static import closure of the project's modules (for the dvc.yaml dependency checks).
+
+Follows every ``import``/``from ... import`` statement, including those inside functions,
+from a stage's entry module through ``pipeline`` and ``compact_perception``; third-party
+modules are ignored (requirements.txt pins them).
+"""
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+PROJECT_PACKAGES = ("pipeline", "compact_perception")
+
+
+def module_file(root: Path, module: str) -> Path | None:
+    """The source file of a project module (``pkg/__init__.py`` for a package), or None."""
+    parts = module.split(".")
+    if parts[0] not in PROJECT_PACKAGES:
+        return None
+    base = root / ("src" if parts[0] == "compact_perception" else "") / Path(*parts)
+    for cand in (base.with_suffix(".py"), base / "__init__.py"):
+        if cand.is_file():
+            return cand
+    return None
+
+
+def _module_name(root: Path, path: Path) -> str:
+    rel = path.relative_to(root / "src" if path.is_relative_to(root / "src") else root).with_suffix("")
+    parts = list(rel.parts)
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    return ".".join(parts)
+
+
+def _imports(root: Path, path: Path) -> set[str]:
+    name = _module_name(root, path)
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base_parts = package.split(".")
+                base_parts = base_parts[: len(base_parts) - (node.level - 1)]
+                base = ".".join(base_parts + ([node.module] if node.module else []))
+            else:
+                base = node.module or ""
+            found.add(base)
+            found.update(f"{base}.{alias.name}" for alias in node.names)  # submodules imported by name
+    out: set[str] = set()
+    for mod in found:
+        parts = mod.split(".")
+        for i in range(1, len(parts) + 1):  # importing a.b.c runs a/__init__ and a/b/__init__ too
+            out.add(".".join(parts[:i]))
+    return out
+
+
+def import_closure(root: Path, entry: Path) -> set[Path]:
+    """Every project source file that running ``entry`` can import."""
+    seen: set[Path] = set()
+    todo = [entry]
+    parent = entry.parent  # `python -m pkg.mod` runs pkg/__init__.py first
+    while (parent / "__init__.py").is_file():
+        todo.append(parent / "__init__.py")
+        parent = parent.parent
+    while todo:
+        path = todo.pop()
+        if path in seen:
+            continue
+        seen.add(path)
+        for mod in _imports(root, path):
+            f = module_file(root, mod)
+            if f is not None and f not in seen:
+                todo.append(f)
+    return seen

@@ -1,0 +1,73 @@
+"""dvc.yaml records every input of a result: each stage depends on every project module its
+entry module can import (statically, lazy imports included) and on nothing that is missing.
+
+The params side (every key a stage reads is listed under its ``params:``) is checked by the
+end-to-end test, which runs the real stages with the params audit on.
+"""
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+import yaml
+
+from imports import import_closure
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _stages() -> dict[str, dict]:
+    stages = yaml.safe_load((ROOT / "dvc.yaml").read_text())["stages"]
+    out = {}
+    for name, stage in stages.items():
+        out[name] = stage.get("do", stage)
+    return out
+
+
+def _code_deps(stage: dict) -> list[str]:
+    deps = []
+    for dep in stage.get("deps", []):
+        path = dep if isinstance(dep, str) else next(iter(dep))
+        if "${" not in path and not path.startswith(("data/", "runs", "results")):
+            deps.append(path)
+    return deps
+
+
+def _covered(path: Path, deps: list[str]) -> bool:
+    rel = path.relative_to(ROOT).as_posix()
+    return any(rel == d or rel.startswith(d.rstrip("/") + "/") for d in deps)
+
+
+@pytest.mark.parametrize("name", sorted(_stages()))
+def test_stage_depends_on_every_module_it_imports(name):
+    stage = _stages()[name]
+    module = re.search(r"-m (pipeline\.\w+)", stage["cmd"]).group(1)
+    entry = ROOT / (module.replace(".", "/") + ".py")
+    deps = _code_deps(stage)
+    missing = sorted(p.relative_to(ROOT).as_posix() for p in import_closure(ROOT, entry) if not _covered(p, deps))
+    assert not missing, f"stage {name} imports these but does not depend on them: {missing}"
+
+
+@pytest.mark.parametrize("name", sorted(_stages()))
+def test_stage_code_deps_exist(name):
+    for dep in _code_deps(_stages()[name]):
+        assert (ROOT / dep).exists(), f"stage {name}: dependency {dep} does not exist"
+
+
+def test_closure_follows_lazy_and_relative_imports(tmp_path):
+    """The checker itself: a lazy import inside a function and a relative import are found."""
+    (tmp_path / "pipeline").mkdir()
+    pkg = tmp_path / "src" / "compact_perception"
+    (pkg / "sub").mkdir(parents=True)
+    (tmp_path / "pipeline" / "__init__.py").write_text("")
+    (tmp_path / "pipeline" / "stage.py").write_text("def main():\n    from compact_perception.sub import thing\n")
+    (pkg / "__init__.py").write_text("")
+    (pkg / "sub" / "__init__.py").write_text("from .thing import f\n")
+    (pkg / "sub" / "thing.py").write_text("from .. import leaf\n")
+    (pkg / "leaf.py").write_text("import numpy\n")
+    (pkg / "unused.py").write_text("")
+    found = {p.relative_to(tmp_path).as_posix() for p in import_closure(tmp_path, tmp_path / "pipeline/stage.py")}
+    assert found == {"pipeline/__init__.py", "pipeline/stage.py", "src/compact_perception/__init__.py",
+                     "src/compact_perception/sub/__init__.py", "src/compact_perception/sub/thing.py",
+                     "src/compact_perception/leaf.py"}

@@ -1,0 +1,66 @@
+"""Training-stage input and write errors: one line naming the file or key, exit status 1,
+nothing half-written (dvclive folders included)."""
+from __future__ import annotations
+
+import errno
+
+import pytest
+import torch
+import yaml
+
+from synthetic import make_cache
+
+
+def _params_file(tmp_path, params_dict, *, epochs=2, batch=2):
+    params_dict["train"]["max_epochs"] = {"default": epochs, "paper": epochs}
+    params_dict["train"]["batch_size"] = batch
+    params_dict["train"]["num_workers"] = 0
+    params_dict["train"]["device"] = "cpu"
+    params_dict["train"]["models"]["compact_1l"].pop("max_epochs", None)
+    path = tmp_path / "params.yaml"
+    path.write_text(yaml.safe_dump(params_dict))
+    return path
+
+
+def _train(tmp_path, params_path, cache):
+    from pipeline.train import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["--dataset", "A", "--model", "compact_1l", "--params", str(params_path), "--cache", str(cache),
+              "--out", str(tmp_path / "run")])
+    return str(exc.value.code)
+
+
+def test_batch_larger_than_the_train_split(tmp_path, params_dict):
+    cache = make_cache(tmp_path / "cache", counts=(3, 2, 2))
+    msg = _train(tmp_path, _params_file(tmp_path, params_dict, batch=4), cache)
+    assert msg.startswith("error: train.batch_size: 4 needs at least 4 training frames") and "\n" not in msg
+    assert str(cache / "train") in msg
+    assert not (tmp_path / "run").exists() or not any((tmp_path / "run").iterdir())
+
+
+@pytest.mark.parametrize("fail_at_save", [1, 3])
+def test_disk_full_leaves_no_half_written_epoch(tmp_path, params_dict, monkeypatch, fail_at_save):
+    """The n-th checkpoint write fails with ENOSPC: one line naming the file; the dvclive logs
+    hold exactly the epochs the checkpoint holds (none when the first write failed)."""
+    cache = make_cache(tmp_path / "cache", counts=(4, 2, 2))
+    params_path = _params_file(tmp_path, params_dict, epochs=3)
+    real_save, calls = torch.save, {"n": 0}
+
+    def failing_save(obj, f, *args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] >= fail_at_save:
+            raise OSError(errno.ENOSPC, "No space left on device", str(f))
+        return real_save(obj, f, *args, **kwargs)
+
+    monkeypatch.setattr(torch, "save", failing_save)
+    msg = _train(tmp_path, params_path, cache)
+    assert "No space left on device" in msg and "\n" not in msg and msg.startswith("error: ")
+    run = tmp_path / "run"
+    assert not (run / "summary.json").exists()
+    if fail_at_save == 1:  # nothing was ever saved: nothing is left
+        assert not (run / "live").exists() and not (run / "last.pt").exists()
+    else:
+        saved = torch.load(run / "last.pt", weights_only=False)["epoch"]
+        logged = (run / "live" / "plots" / "metrics" / "lr.tsv").read_text().split()[2::2]
+        assert logged == [str(e) for e in range(saved + 1)]
