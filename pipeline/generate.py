@@ -26,11 +26,12 @@ def main(argv: list[str] | None = None) -> int:
     dp = getattr(params.datasets, args.dataset)
     if dp.source == "authors":
         from compact_perception.authors import describe_authors_dataset
-        from compact_perception.preprocess import RecordError
+        from compact_perception.errors import RecordError
 
         try:
-            describe_authors_dataset(dp.authors_root, args.dataset, Path(args.out) / args.dataset,
-                                     Path(args.figure_dir) / f"world_{args.dataset}.png")
+            describe_authors_dataset(dp.authors_root, dp.authors_splits, args.dataset, Path(args.out) / args.dataset,
+                                     Path(args.figure_dir) / f"world_{args.dataset}.png",
+                                     resolution=params.world.resolution.at(params.scale), workers=params.world.workers)
         except RecordError as err:
             sys.exit(f"error: {err}")
         return 0

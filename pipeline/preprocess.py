@@ -6,12 +6,12 @@ Thin wrapper around :func:`compact_perception.preprocess.preprocess_dataset`; al
 from __future__ import annotations
 
 import argparse
-import logging
 import sys
 from pathlib import Path
 
 from compact_perception.cache import CacheError
-from compact_perception.preprocess import RecordError, preprocess_dataset
+from compact_perception.errors import RecordError
+from compact_perception.preprocess import preprocess_dataset
 
 from ._common import start
 
@@ -34,8 +34,7 @@ def main(argv: list[str] | None = None) -> int:
             figure_path=Path(args.figures) / f"lidar_preprocessing_{args.dataset}.png",
         )
     except (RecordError, CacheError) as err:
-        logging.getLogger("preprocess").error("%s", err)
-        return 1
+        sys.exit(f"error: {err}")
     return 0
 
 

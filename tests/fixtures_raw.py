@@ -4,9 +4,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import cv2
 import numpy as np
-import yaml
 
 from compact_perception.classes import BEV_NAMES, CARLA_NAMES, CARLA_PALETTE
 from compact_perception.geometry import VIEWS
@@ -79,48 +77,3 @@ def make_raw_dataset(
 
 def read_manifest(root: Path) -> dict:
     return json.loads((Path(root) / "manifest.json").read_text())
-
-
-def make_authors_layout(root: Path, n: int = 5, s: int = 16) -> list[dict]:
-    """Write ``n`` frames in the authors' released layout (float64 one-hot, BGR images,
-    data_info.yml with a 3/1/1 split) under ``root``; returns the expected cache content."""
-    rng = np.random.default_rng(0)
-    truth = []
-    for i in range(n):
-        fid, stem = f"{i:04d}.png", f"{i:04d}"
-        t: dict = {"ss": [], "rgb": []}
-        for v in VIEWS:
-            for sub in ("rgb", "dvs", "depth", "segmentation"):
-                (root / f"{sub}_{v}").mkdir(parents=True, exist_ok=True)
-            rgb = rng.integers(0, 256, (s, s, 3), dtype=np.uint8)
-            cv2.imwrite(str(root / f"rgb_{v}" / fid), rgb[..., ::-1])  # stored BGR
-            dvs = np.zeros((s, s, 3), np.uint8)
-            dvs[1, 2] = (255, 0, 0)  # BGR blue: positive
-            dvs[3, 4] = (0, 0, 255)  # BGR red: negative
-            cv2.imwrite(str(root / f"dvs_{v}" / fid), dvs)
-            cv2.imwrite(str(root / f"depth_{v}" / fid), np.full((s, s), 51, np.uint8))
-            ss = rng.integers(0, 23, (s, s))
-            oh = np.eye(23)[ss].transpose(2, 0, 1)  # float64 one-hot
-            oh[:, 0, 0] = 0.0  # unlabeled pixel
-            np.save(root / f"segmentation_{v}" / f"{stem}_128.npy", oh)
-            ss = ss.astype(np.uint8)
-            ss[0, 0] = 255
-            t["ss"].append(ss)
-            t["rgb"].append(rgb.transpose(2, 0, 1))
-        for sub in ("lid_depth_top", "lid_seg_top", "bird_view"):
-            (root / sub).mkdir(exist_ok=True)
-        t["lidar"] = rng.random((15, s, s))
-        np.save(root / "lid_depth_top" / f"{stem}_128.npy", t["lidar"])
-        ls = rng.integers(0, 23, (s, s))
-        ls_oh = np.eye(23)[ls]  # channels-last variant
-        ls_oh[5:, :, :] = 0.0
-        np.save(root / "lid_seg_top" / f"{stem}_128.npy", ls_oh)
-        t["ls"] = np.where(np.arange(s)[:, None] < 5, ls, 255).astype(np.uint8)
-        t["bev"] = rng.integers(0, 2, (9, s, s)).astype(np.float64)
-        np.save(root / "bird_view" / f"{stem}_128.npy", t["bev"])
-        truth.append(t)
-    info = {"train_idx": [0, 1, 2], "val_idx": [3], "test_idx": [4], "n_total": 5, "n_seg_class": 23,
-            "seg_classes": list(CARLA_NAMES), "seg_colors": CARLA_PALETTE.tolist(), "n_bird_class": 9,
-            "bird_classes": list(BEV_NAMES), "bird_colors": [[0, 0, 0]] * 9}
-    (root / "data_info.yml").write_text(yaml.safe_dump(info))
-    return truth

@@ -1,4 +1,4 @@
-"""Preprocessing (section IV-C, eq. (1)-(5)), the cache, the loader and the authors' ingestion."""
+"""Preprocessing (section IV-C, eq. (1)-(5)), the cache and the loader (the authors' dataset: test_authors.py)."""
 from __future__ import annotations
 
 import json
@@ -8,11 +8,9 @@ import numpy as np
 import pytest
 import torch
 
-from compact_perception.authors import ingest_authors
-from fixtures_raw import make_authors_layout
 from compact_perception.cache import CacheError, read_cache, write_cache
 from compact_perception.classes import BEV_NAMES, CARLA_NAMES, CARLA_PALETTE, palette_to_index
-from compact_perception.config import PreprocessParams, parse_params
+from compact_perception.config import parse_params
 from compact_perception.data import make_loader, to_device
 from compact_perception.dvs import dvs_colour_to_image, events_to_image
 from compact_perception.lidar import height_channel, ls_ground_truth, topview_15l, topview_1l
@@ -20,6 +18,7 @@ from compact_perception.preprocess import RecordError, RecordSpec, preprocess_da
 from compact_perception.geometry import VIEWS
 
 from fixtures_raw import make_raw_dataset, make_record
+from repo_params import section
 
 S = 128
 
@@ -134,7 +133,7 @@ def test_preprocess_record_keys_and_class_maps() -> None:
     idx = np.arange(16 * 16).reshape(16, 16) % 23
     rec["sem_l"] = CARLA_PALETTE[idx]
     spec = RecordSpec(VIEWS, 16)
-    f = preprocess_record(rec, spec, PreprocessParams(), frame_id="x")
+    f = preprocess_record(rec, spec, section("preprocess"), frame_id="x")
     expect = {"rgb": (np.uint8, (4, 3, 16, 16)), "dvs": (np.uint8, (4, 2, 16, 16)), "lidar": (np.float16, (15, 16, 16)),
               "de": (np.float16, (4, 1, 16, 16)), "ss": (np.uint8, (4, 16, 16)), "ls": (np.uint8, (16, 16)),
               "bevp": (np.uint8, (9, 16, 16))}
@@ -225,7 +224,7 @@ def raw(tmp_path: Path) -> Path:
 
 
 def _run(raw: Path, out: Path) -> Path:
-    return preprocess_sim(raw, out, "A", PreprocessParams(workers=1))
+    return preprocess_sim(raw, out, "A", section("preprocess", workers=1))
 
 
 def test_preprocess_sim_end_to_end(raw: Path, tmp_path: Path) -> None:
@@ -275,22 +274,3 @@ def test_preprocess_dataset_with_figure(raw: Path, tmp_path: Path, params_dict: 
     preprocess_dataset(params, "A", raw_root=raw.parent, cache_root=tmp_path / "cache", figure_path=fig)
     assert fig.stat().st_size > 1000 and read_cache(tmp_path / "cache" / "A").meta["counts"]["test"] == 1
 
-
-# ----------------------------------------------------------------------------- authors' layout
-def test_authors_layout_ingests(tmp_path: Path) -> None:
-    root = tmp_path / "authors"
-    truth = make_authors_layout(root)
-    cache = read_cache(ingest_authors(root, tmp_path / "cache" / "A", "A"))
-    assert cache.meta["counts"] == {"train": 3, "val": 1, "test": 1} and cache.meta["source"] == "authors"
-    assert cache["val"].frame_ids == ["0003.png"]
-    a, t = cache["val"].arrays, truth[3]
-    assert np.array_equal(a["rgb"][0], np.stack(t["rgb"]))
-    assert np.array_equal(a["ss"][0], np.stack(t["ss"]))
-    assert np.array_equal(a["ls"][0], t["ls"])
-    assert np.array_equal(a["bevp"][0], t["bev"].astype(np.uint8))
-    assert np.allclose(a["lidar"][0], t["lidar"], atol=1e-3) and a["lidar"].dtype == np.float16
-    assert np.allclose(a["de"][0], 0.2, atol=1e-3)
-    d = a["dvs"][0]  # (V, 2, S, S)
-    assert d[:, 0, 1, 2].tolist() == [1] * 4 and d[:, 1, 1, 2].tolist() == [0] * 4  # blue -> positive only
-    assert d[:, 1, 3, 4].tolist() == [1] * 4 and d[:, 0, 3, 4].tolist() == [0] * 4  # red -> negative only
-    assert a["dvs"][0].sum() == 2 * 4

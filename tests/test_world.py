@@ -262,9 +262,9 @@ def test_inconsistent_frames_per_episode_fails_before_work(params_dict, tmp_path
 def test_intrinsics_extrinsics():
     K = cam.intrinsic_matrix(128, 90.0)
     assert np.isclose(K[0, 0], 64.0) and K[0, 2] == 64.0
-    from compact_perception.config import CameraParams
+    from repo_params import section
 
-    T = cam.ego_from_camera("l", CameraParams(), 2.0)
+    T = cam.ego_from_camera("l", section("world.camera"), 2.0)
     assert np.allclose(T[:3, 3], [0.0, 1.0, -0.3])
     # optical axis of the left camera points left (+y) and 20 deg up
     assert np.allclose(T[:3, 2], [0.0, np.cos(np.deg2rad(20)), np.sin(np.deg2rad(20))], atol=1e-9)
@@ -280,30 +280,3 @@ def test_plan_c_splits_by_episode(params_dict):
     assert n == {"train": 120, "val": 40, "test": 40}
     assert len({e["index"] for e in plan}) == len(plan) and len({e["seed"] for e in plan}) == len(plan)
     assert {e["town"] for e in plan if e["split"] == "train"} == {f"town0{k}" for k in range(1, 6)}
-
-
-def test_generate_stage_with_authors_source(params_dict, tmp_path: Path, root: Path):
-    """source: authors renders nothing: the stage points at the data and draws its first test frame."""
-    import json
-    import subprocess
-    import sys
-
-    import yaml
-    from fixtures_raw import make_authors_layout
-
-    make_authors_layout(tmp_path / "authors")
-    params_dict["datasets"]["A"].update({"source": "authors", "authors_root": str(tmp_path / "authors")})
-    pf = tmp_path / "params.yaml"
-    pf.write_text(yaml.safe_dump(params_dict))
-    r = subprocess.run([sys.executable, "-m", "pipeline.generate", "--dataset", "A", "--params", str(pf),
-                        "--out", str(tmp_path / "raw"), "--figure-dir", str(tmp_path / "fig")],
-                       capture_output=True, text=True, timeout=120, cwd=root)
-    assert r.returncode == 0, r.stderr
-    manifest = json.loads((tmp_path / "raw" / "A" / "manifest.json").read_text())
-    assert manifest["source"] == "authors" and len(manifest["splits"]["train"]) == 3
-    assert (tmp_path / "fig" / "world_A.png").read_bytes()[:4] == b"\x89PNG"
-    params_dict["datasets"]["A"]["authors_root"] = str(tmp_path / "missing")
-    pf.write_text(yaml.safe_dump(params_dict))
-    r = subprocess.run([sys.executable, "-m", "pipeline.generate", "--dataset", "A", "--params", str(pf),
-                        "--out", str(tmp_path / "raw2")], capture_output=True, text=True, timeout=120, cwd=root)
-    assert r.returncode != 0 and "authors_root" in r.stderr and not (tmp_path / "raw2").exists()

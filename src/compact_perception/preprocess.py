@@ -32,19 +32,17 @@ from typing import Any, Iterator, Mapping, Sequence
 import numpy as np
 from tqdm import tqdm
 
+from .authors import ingest_authors
 from .cache import write_cache
 from .classes import CARLA_PALETTE, palette_to_index
 from .config import Params, PreprocessParams
 from .dvs import events_to_image
+from .errors import RecordError  # re-exported: ``from .preprocess import RecordError`` keeps working
 from .lidar import ls_ground_truth, topview_15l
 
 log = logging.getLogger(__name__)
 
 SPLITS: tuple[str, ...] = ("train", "val", "test")
-
-
-class RecordError(ValueError):
-    """A raw record or dataset is unusable; the message names the frame id and the file."""
 
 
 @dataclass(frozen=True)
@@ -218,9 +216,8 @@ def preprocess_dataset(
     if ds.source == "sim":
         cache = preprocess_sim(Path(raw_root) / dataset_id, out_dir, dataset_id, params.preprocess)
     else:
-        from .authors import ingest_authors
-
-        cache = ingest_authors(ds.authors_root, out_dir, dataset_id, workers=params.preprocess.workers)
+        cache = ingest_authors(ds.authors_root, ds.authors_splits, out_dir, dataset_id,
+                               resolution=params.world.resolution.at(params.scale), workers=params.preprocess.workers)
     if figure_path is not None:
         from .figures_lidar import plot_lidar_layers
 
