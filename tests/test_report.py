@@ -7,17 +7,21 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 import torch
 from torch import nn
 
 from compact_perception import io
+from compact_perception.evaluate import summarise
+from compact_perception.metrics import scores_from_means
 from compact_perception.report import efficiency as eff
 from compact_perception.report.collect import ReportInputError, load_results, read_metrics
 from compact_perception.report.figures import plot_loss_weights, plot_qualitative, plot_training_curves
 from compact_perception.report.index import build_reports
-from compact_perception.report.paper import DATASETS, ROW_IDS, TASK_COLUMNS, combination_terms, load_paper_numbers
-from compact_perception.report.tables import build_table2, build_table3, write_table2
+from compact_perception.report.collect import load_row_frames
+from compact_perception.report.paper import DATASETS, ROW_IDS, TASK_COLUMNS, load_paper_numbers
+from compact_perception.report.tables import build_table2, build_table3, column_bootstrap, write_table2
 
 MODELS = ("compact_1l", "compact_15l", "compact_15l_mgn", "gradnorm_segnet", "polarnet", "chen_bev")
 TASKS = {
@@ -33,14 +37,16 @@ def test_paper_numbers_complete_and_self_consistent() -> None:
     for ds in DATASETS:
         rows = p.table2[ds]
         assert set(rows) == set(ROW_IDS)
-        # the printed combination TM / MV follow from the printed baseline cells (3-decimal rounding)
-        tm, mv = combination_terms(rows["gradnorm_segnet"].value("mae_de"), rows["gradnorm_segnet"].value("iou_ss"),
-                                   rows["polarnet"].value("iou_ls"), rows["chen_bev"].value("iou_bevp"))
-        assert tm == pytest.approx(rows["combination"].tm, abs=1.5e-3)
-        assert mv == pytest.approx(rows["combination"].mv, abs=1.5e-3)
+        # the printed combination TM / MV follow from the printed baseline cells (3-decimal rounding;
+        # tests/test_losses_metrics.py checks MV at the printed precision row by row)
+        s = scores_from_means({"mae_de": rows["gradnorm_segnet"].value("mae_de"),
+                               "iou_ss": rows["gradnorm_segnet"].value("iou_ss"),
+                               "iou_ls": rows["polarnet"].value("iou_ls"), "iou_bevp": rows["chen_bev"].value("iou_bevp")})
+        assert s["tm"] == pytest.approx(rows["combination"].tm, abs=1.5e-3)
+        assert s["mv"] == pytest.approx(rows["combination"].mv, abs=1.5e-3)
         for m in ("compact_1l", "compact_15l", "compact_15l_mgn"):
-            tm, mv = combination_terms(*(rows[m].value(c) for c in TASK_COLUMNS))
-            assert tm == pytest.approx(rows[m].tm, abs=1.5e-3) and mv == pytest.approx(rows[m].mv, abs=1.5e-3)
+            s = scores_from_means({c: rows[m].value(c) for c in TASK_COLUMNS})
+            assert s["tm"] == pytest.approx(rows[m].tm, abs=1.5e-3) and s["mv"] == pytest.approx(rows[m].mv, abs=1.5e-3)
     assert p.table2["A"]["compact_15l_mgn"].tm == 1.393 and p.table2["C"]["polarnet"].value("iou_ls") == 0.735
     assert p.table2["A"]["gradnorm_segnet"].cells["iou_ss"].var == 0.002
     assert p.table2["A"]["chen_bev"].cells["iou_bevp"].var_below
@@ -97,16 +103,44 @@ def test_measure_model_cpu_counts() -> None:
 
 
 # ----------------------------------------------------------------------------- fake pipeline outputs
-def _metrics(ds: str, model: str, k: int) -> dict:
-    rng = np.random.default_rng(hash((ds, model)) % 2**32 + k)
-    out: dict = {}
+#: Mean score per model and column of the fake test sets: IoU_LS (PolarNet), IoU_BEVP (Chen)
+#: and TM (the combination, 1.1 against 15L+MGN's 1.24) have clear winners; MAE_DE and IoU_SS
+#: of 15L and 15L+MGN are equal (the best is not separated from the runner-up).
+BASES: dict[str, dict[str, float]] = {
+    "chen_bev": {"iou_bevp": 0.70},
+    "polarnet": {"iou_ls": 0.90},
+    "gradnorm_segnet": {"mae_de": 0.20, "iou_ss": 0.50},
+    "compact_1l": {"mae_de": 0.10, "iou_ss": 0.60, "iou_ls": 0.40, "iou_bevp": 0.50},
+    "compact_15l": {"mae_de": 0.09, "iou_ss": 0.65, "iou_ls": 0.50, "iou_bevp": 0.55},
+    "compact_15l_mgn": {"mae_de": 0.09, "iou_ss": 0.65, "iou_ls": 0.60, "iou_bevp": 0.60},
+}
+N_FRAMES = 30
+
+
+def _per_frame(ds: str, model: str) -> pd.DataFrame:
+    """Per-frame scores: shared frame difficulty + the model's base + its own noise."""
+    seed = sum(map(ord, ds)) * 100 + MODELS.index(model)
+    rng = np.random.default_rng(seed)
+    difficulty = np.random.default_rng(sum(map(ord, ds))).normal(0, 0.03, N_FRAMES)
+    df = pd.DataFrame({"frame_id": [f"f{i:03d}" for i in range(N_FRAMES)]})
     for c in TASKS[model]:
-        mean = float(rng.uniform(0.05, 0.2) if c == "mae_de" else rng.uniform(0.3, 0.9))
-        out[c] = {"mean": mean, "var": float(rng.uniform(0, 0.004))}
+        sign = 1.0 if c == "mae_de" else -1.0
+        df[c] = BASES[model][c] + sign * difficulty + rng.normal(0, 0.01, N_FRAMES)
     if len(TASKS[model]) == 4:
-        tm, mv = combination_terms(*(out[c]["mean"] for c in TASK_COLUMNS))
-        out["tm"], out["mv"] = {"mean": tm, "var": 0.001}, {"mean": mv, "var": 1e-5}
-    out.update(n_frames=4, source="simulated (embedded world)" if ds != "nuscenes" else "simulated nuScenes-format",
+        df["tm"] = df["mae_de"] + 3 - df["iou_ss"] - df["iou_ls"] - df["iou_bevp"]
+    return df
+
+
+def _metrics(ds: str, model: str, frames: pd.DataFrame) -> dict:
+    out: dict = dict(summarise(frames))
+    if "iou_ss" in TASKS[model]:
+        out["class_iou"] = {"ss": {"miou": 0.5, "n_classes_in_miou": 2, "classes": {"road": 0.75, "sky": 0.25,
+                                                                                     "water": None}},
+                            "definition": "test"}
+    if "mae_de" in TASKS[model]:
+        out["depth"] = {"abs_rel": {"mean": 0.25, "var": 0.01}, "rmse_m": {"mean": 12.5, "var": 4.0},
+                        "delta_1.25": {"mean": 0.6, "var": 0.02}, "n_frames": N_FRAMES, "definition": "test"}
+    out.update(n_frames=N_FRAMES, source="simulated (embedded world)" if ds != "nuscenes" else "simulated nuScenes-format",
                device="CPU")
     return out
 
@@ -125,9 +159,11 @@ def _fake_tree(root: Path, datasets: tuple[str, ...] = ("A", "nuscenes"), S: int
                       {"counts": {"train": 6, "val": 2, "test": 2}, "resolution": S, "has_dvs": dvs, "source": "sim"})
         rng = np.random.default_rng(0)
         for k, m in enumerate(MODELS):
-            met = _metrics(ds, m, k)
+            frames = _per_frame(ds, m)
+            met = _metrics(ds, m, frames)
             all_metrics[(ds, m)] = met
             io.write_json(root / "results" / ds / m / "metrics.json", met)
+            io.write_text(root / "data/eval" / ds / m / "per_frame.csv", frames.to_csv(index=False, float_format="%.6f"))
             run = root / "runs" / ds / m
             metrics_dir = run / "live/plots/metrics"
             _tsv(metrics_dir / "val_score.tsv", "val_score", [1.5, 1.3, 1.2])
@@ -166,10 +202,15 @@ def _fake_tree(root: Path, datasets: tuple[str, ...] = ("A", "nuscenes"), S: int
     return all_metrics
 
 
+def _frames(root: Path, datasets: tuple[str, ...] = ("A", "nuscenes")) -> dict:
+    return {ds: load_row_frames(root, ds, MODELS) for ds in datasets}
+
+
 def test_table2_numbers_bold_and_combination(tmp_path: Path) -> None:
     mets = _fake_tree(tmp_path)
     results = load_results(tmp_path / "results", ["A", "nuscenes"], MODELS)
-    paths = write_table2(results, tmp_path / "out")
+    frames = _frames(tmp_path)
+    paths = write_table2(results, tmp_path / "out", frames)
     assert sorted(p.name for p in paths) == ["table2.csv", "table2.md", "table2.tex"] and all(p.is_file() for p in paths)
     rows = list(csv.DictReader((tmp_path / "out/table2.csv").open()))
     assert [r["row_id"] for r in rows[:7]] == ["chen_bev", "polarnet", "gradnorm_segnet", "combination",
@@ -181,11 +222,9 @@ def test_table2_numbers_bold_and_combination(tmp_path: Path) -> None:
         if rid == "combination":
             src = {"mae_de": "gradnorm_segnet", "iou_ss": "gradnorm_segnet", "iou_ls": "polarnet", "iou_bevp": "chen_bev"}
             vals = [mets[(ds, src[c])][c]["mean"] for c in TASK_COLUMNS]
-            tm, mv = combination_terms(*vals)
             terms = [vals[0]] + [1 - v for v in vals[1:]]
             assert float(r["tm"]) == pytest.approx(sum(terms), abs=1e-12)
-            assert float(r["mv"]) == pytest.approx(float(np.var(terms)), abs=1e-12)
-            assert float(r["mv"]) == pytest.approx(mv)
+            assert float(r["mv"]) == pytest.approx(float(np.var(terms)), abs=1e-12)   # MV of the four means
             for c, v in zip(TASK_COLUMNS, vals):
                 assert float(r[f"{c}_mean"]) == v
             continue
@@ -197,18 +236,40 @@ def test_table2_numbers_bold_and_combination(tmp_path: Path) -> None:
             else:
                 assert r[f"{c}_mean"] == ""
         if len(TASKS[rid]) == 4:
-            assert float(r["tm"]) == met["tm"]["mean"] and float(r["mv"]) == met["mv"]["mean"]
-    # bold on the best per column (lowest MAE/TM/MV, highest IoU) at printed precision
+            # a compact row: TM and MV of its four means, computed like the combination's
+            means = {c: met[c]["mean"] for c in TASK_COLUMNS}
+            terms = [means["mae_de"]] + [1 - means[c] for c in TASK_COLUMNS[1:]]
+            assert float(r["tm"]) == met["tm"]["mean"] == pytest.approx(sum(terms), abs=1e-12)
+            assert float(r["mv"]) == met["mv"]["value"] == pytest.approx(float(np.var(terms)), abs=1e-12)
+    # bold only where the bootstrap separates the best from the runner-up
     for ds in ("A", "nuscenes"):
-        dsr = [r for r in rows if r["dataset"] == ds]
-        for c, lower in (("mae_de", True), ("iou_ss", False), ("iou_ls", False), ("iou_bevp", False),
-                         ("tm", True), ("mv", True)):
-            key = c if c in ("tm", "mv") else f"{c}_mean"
-            vals = {r["row_id"]: round(float(r[key]), 3) for r in dsr if r[key] != ""}
-            best = min(vals.values()) if lower else max(vals.values())
-            for rid, v in vals.items():
-                assert (c in dsr[[x["row_id"] for x in dsr].index(rid)]["bold"].split(";")) == (v == best)
-    assert "**" in md and "\\textbf{" in tex
+        dsr = {r["row_id"]: r for r in rows if r["dataset"] == ds}
+        bold = {c: [rid for rid, r in dsr.items() if c in r["bold"].split(";")] for c in
+                ("mae_de", "iou_ss", "iou_ls", "iou_bevp", "tm", "mv")}
+        assert bold["iou_ls"] == ["polarnet"] and bold["iou_bevp"] == ["chen_bev"] and bold["tm"] == ["combination"]
+        assert bold["mae_de"] == [] and bold["iou_ss"] == []           # 15L and 15L+MGN are not separated
+        for c in ("mae_de", "iou_ss"):
+            flagged = [rid for rid, r in dsr.items() if c in r["best_inconclusive"].split(";")]
+            assert len(flagged) == 1 and flagged[0] in ("compact_15l", "compact_15l_mgn")
+        assert len(bold["mv"]) <= 1
+        # the combination's task cells are copies: never bold, never compared
+        assert dsr["combination"]["bold"] in ("", "tm", "mv", "tm;mv")
+    assert "**" in md and "\\textbf{" in tex and "inconclusive against" in md and "$^\\dagger$" in tex
+    # without per-frame scores nothing is bold and every best value says why
+    plain = build_table2(results)
+    assert not any(r.bold for rs in plain.values() for r in rs if len([x for x in rs if x.available]) > 1)
+    assert any("no per-frame scores" in n for rs in plain.values() for r in rs for n in r.notes.values())
+
+
+def test_column_bootstrap_matches_direct_bootstrap(tmp_path: Path) -> None:
+    _fake_tree(tmp_path, ("A",))
+    frames = _frames(tmp_path, ("A",))["A"]
+    r = column_bootstrap("compact_15l_mgn", "compact_15l", "iou_ls", frames)
+    diff = frames["compact_15l_mgn"][0]["iou_ls"].mean() - frames["compact_15l"][0]["iou_ls"].mean()
+    assert r is not None and r.estimate == pytest.approx(diff) and r.ci_low > 0
+    comb = column_bootstrap("combination", "compact_15l_mgn", "tm", frames)
+    assert comb is not None and comb.ci_low > 0
+    assert column_bootstrap("polarnet", "compact_15l", "tm", frames) is None     # PolarNet has no TM
 
 
 def test_table2_missing_model_row_is_na(tmp_path: Path) -> None:
@@ -267,3 +328,49 @@ def test_build_reports_end_to_end(tmp_path: Path) -> None:
     comb = [r for r in cmp_rows if r["dataset"] == "nuscenes" and r["row_id"] == "combination" and r["column"] == "tm"]
     assert float(comb[0]["paper"]) == 1.124
     assert not list(out.glob(".report-*"))
+    # the claims scorecard and the metrics beyond the paper's, linked from the index
+    for name in ("tables/claims.md", "tables/claims.csv", "tables/extra_metrics.md", "tables/extra_metrics.csv",
+                 "tables/extra_metrics_per_class.csv"):
+        assert (out / name).is_file() and name in rel
+        assert f"({name})" in index
+    claims = list(csv.DictReader((out / "tables/claims.csv").open()))
+    assert {(r["claim"], r["dataset"]) for r in claims} >= {(c, ds) for ds in ("A", "nuscenes") for c in
+                                                            ("lidar-tm", "mgn-tm", "mgn-mv", "vs-combination", "mgn-weights")}
+    assert "Verdict rule" in index and "reproduced" in (out / "tables/claims.md").read_text()
+    extra = list(csv.DictReader((out / "tables/extra_metrics.csv").open()))
+    mgn = [r for r in extra if r["dataset"] == "A" and r["row_id"] == "compact_15l_mgn"][0]
+    assert float(mgn["miou_ss"]) == 0.5 and float(mgn["rmse_m_mean"]) == 12.5 and mgn["miou_ls"] == ""
+    per_class = list(csv.DictReader((out / "tables/extra_metrics_per_class.csv").open()))
+    water = [r for r in per_class if r["class"] == "water"]
+    assert water and all(r["iou"] == "" for r in water)        # absent class: no IoU
+    # Table II's columns are unchanged
+    header = (out / "tables/table2.csv").read_text().splitlines()[0].split(",")
+    assert header[:15] == ["dataset", "row_id", "label", "available"] + [f"{c}_{k}" for c in TASK_COLUMNS
+                                                                        for k in ("mean", "var")] + ["tm", "mv", "bold"]
+
+
+def test_read_metrics_mv_shapes(tmp_path: Path) -> None:
+    """MV as evaluate writes it ({"value", "definition"}), and the older shapes."""
+    p = tmp_path / "metrics.json"
+    base = {"mae_de": {"mean": 0.1, "var": 0.0}}
+    for mv, want in (({"value": 0.027, "definition": "eq. 7"}, 0.027), ({"mean": 0.03, "var": 0.001}, 0.03), (0.02, 0.02)):
+        p.write_text(json.dumps({**base, "mv": mv}))
+        assert read_metrics(p).scores["mv"].mean == want
+    p.write_text(json.dumps({**base, "mv": {"value": "x"}}))
+    with pytest.raises(ReportInputError, match="metrics.json: mv.value"):
+        read_metrics(p)
+    p.write_text(json.dumps({**base, "depth": [1, 2]}))
+    with pytest.raises(ReportInputError, match="metrics.json: depth"):
+        read_metrics(p)
+
+
+def test_table2_mv_is_the_mv_of_the_means_for_every_row(tmp_path: Path) -> None:
+    """An older metrics file holding the mean of a per-frame MV still shows eq. 7 of the means."""
+    mets = _fake_tree(tmp_path, ("A",))
+    stale = dict(mets[("A", "compact_1l")])
+    stale["mv"] = {"mean": 0.5, "var": 0.01}
+    io.write_json(tmp_path / "results/A/compact_1l/metrics.json", stale)
+    rows = {r.row_id: r for r in build_table2(load_results(tmp_path / "results", ["A"], MODELS))["A"]}
+    means = {c: stale[c]["mean"] for c in TASK_COLUMNS}
+    assert rows["compact_1l"].cells["mv"].mean == pytest.approx(scores_from_means(means)["mv"], abs=1e-15)
+    assert rows["compact_1l"].cells["tm"].mean == pytest.approx(scores_from_means(means)["tm"], abs=1e-15)

@@ -6,7 +6,23 @@
   **Empty union** (nothing predicted and nothing labelled in a view): IoU = 1.0 for that view,
   a perfect agreement on "nothing is there"; it is neither dropped nor counted as 0.
 - :func:`total_metric`   eq. (6): ``TM = MAE + (1-IoU_SS) + (1-IoU_LS) + (1-IoU_BEVP)``.
-- :func:`metric_variance` eq. (7): population variance of those four terms.
+- :func:`metric_variance` eq. (7): population variance of those four terms. In Table II
+  each term is a **test-set mean**, so MV is computed once from the four means
+  (:func:`scores_from_means`), never averaged over frames (set A 15L+MGN: terms 0.084, 0.373,
+  0.530, 0.406 -> 0.0267, printed 0.027). TM is linear, so TM of the means equals the mean of
+  the per-frame TM.
+
+This module is the project's only implementation of TM and MV; evaluation, the reports and the
+claims' statistics all call :func:`total_metric` / :func:`metric_variance`.
+
+Metrics the field expects, beside the paper's (not in the paper):
+
+- :func:`class_confusion` / :func:`multilabel_confusion`: per-class TP, FP, FN counts, summed
+  over the test set by the caller; :func:`class_iou` = TP / (TP + FP + FN) per class and
+  :func:`mean_iou` over the classes present (a class with TP + FP + FN = 0, absent from both
+  prediction and ground truth, has no IoU and is left out of the mean).
+- :func:`decode_log_depth` and :func:`depth_errors_per_sample`: AbsRel, RMSE (m) and the
+  delta < 1.25 accuracy on metric depth decoded from the cache's CARLA log encoding.
 
 Batch-level functions (:func:`mae`, :func:`iou`, :func:`compute_metrics`) pool all elements of
 the batch (per view for IoU); the ``*_per_sample`` variants return one value per sample, (B,),
@@ -33,6 +49,18 @@ __all__ = [
     "compute_metrics",
     "compute_metrics_per_sample",
     "combine_tasks",
+    "scores_from_means",
+    "total_metric_partial",
+    "MV_DEFINITION",
+    "class_confusion",
+    "multilabel_confusion",
+    "class_iou",
+    "mean_iou",
+    "DEPTH_FAR_M",
+    "DEPTH_LOG_K",
+    "decode_log_depth",
+    "depth_valid_mask",
+    "depth_errors_per_sample",
 ]
 
 TASKS = ("de", "ss", "ls", "bevp")
@@ -91,9 +119,37 @@ def metric_variance(mae_de: Number, iou_ss: Number, iou_ls: Number, iou_bevp: Nu
     return sum((m - mean) ** 2 for m in terms) / 4
 
 
+#: How the project's metrics.json labels MV (paper eq. 7 applied to the test-set means).
+MV_DEFINITION = "population variance of the four test-set mean terms (paper eq. 7)"
+#: The per-frame scores that enter TM / MV (eq. 6, 7), in this order.
+SCORE_TERMS: tuple[str, ...] = ("mae_de", "iou_ss", "iou_ls", "iou_bevp")
+
+
+def scores_from_means(means: Mapping[str, float]) -> dict[str, float]:
+    """TM (eq. 6) and MV (eq. 7) from the four **test-set means** ``mae_de``, ``iou_ss``,
+    ``iou_ls``, ``iou_bevp`` (Table II's definition); empty if any of the four is missing."""
+    if not all(k in means for k in SCORE_TERMS):
+        return {}
+    vals = [float(means[k]) for k in SCORE_TERMS]
+    return {"tm": float(total_metric(*vals)), "mv": float(metric_variance(*vals))}
+
+
+def total_metric_partial(scores: Mapping[str, float]) -> float:
+    """Eq. (6) over the tasks present in ``scores``: ``MAE_DE`` plus ``1 - IoU`` of each IoU
+    key present (TM itself for the compact model; a baseline's own share of TM)."""
+    out = float(scores.get("mae_de", 0.0))
+    for k in SCORE_TERMS[1:]:
+        if k in scores:
+            out += 1.0 - float(scores[k])
+    return out
+
+
 def compute_metrics(outputs: Mapping[str, Tensor], targets: Mapping[str, Tensor]) -> dict[str, float]:
     """Batch metrics for the tasks present in both dicts: ``mae_de``, ``iou_ss``, ``iou_ls``,
-    ``iou_bevp``; plus ``tm`` and ``mv`` only when all four are present."""
+    ``iou_bevp``; plus ``tm`` and ``mv`` only when all four are present.
+
+    ``mv`` here is eq. (7) of *this batch's* four scores; a mean of it over batches or frames
+    is not the paper's MV (use :func:`scores_from_means` on the split's means)."""
     out: dict[str, float] = {}
     if "de" in outputs and "de" in targets:
         out["mae_de"] = float(mae(outputs["de"], targets["de"]))
@@ -107,16 +163,17 @@ def compute_metrics(outputs: Mapping[str, Tensor], targets: Mapping[str, Tensor]
 
 
 def compute_metrics_per_sample(outputs: Mapping[str, Tensor], targets: Mapping[str, Tensor]) -> dict[str, Tensor]:
-    """As :func:`compute_metrics` but every value is a (B,) float64 tensor (one per frame)."""
+    """As :func:`compute_metrics` but every value is a (B,) float64 tensor (one per frame).
+
+    Per-frame ``tm`` only: MV is not a per-frame quantity (eq. 7 takes the test-set means)."""
     out: dict[str, Tensor] = {}
     if "de" in outputs and "de" in targets:
         out["mae_de"] = mae_per_sample(outputs["de"], targets["de"])
     for t in ("ss", "ls", "bevp"):
         if t in outputs and t in targets:
             out[f"iou_{t}"] = iou_per_sample(outputs[t], targets[t])
-    if all(k in out for k in ("mae_de", "iou_ss", "iou_ls", "iou_bevp")):
+    if all(k in out for k in SCORE_TERMS):
         out["tm"] = total_metric(out["mae_de"], out["iou_ss"], out["iou_ls"], out["iou_bevp"])
-        out["mv"] = metric_variance(out["mae_de"], out["iou_ss"], out["iou_ls"], out["iou_bevp"])
     return out
 
 
@@ -139,8 +196,9 @@ def combine_tasks(
     (``iou_bevp``); returns those four plus ``tm`` (eq. 6) and ``mv`` (eq. 7).
 
     Values may be scalars or per-test-frame sequences/tensors (same frame order in all
-    three); per-frame inputs give per-frame ``tm``/``mv`` lists, to be aggregated like any
-    model's per-frame scores.
+    three). Scalars should be the test-set means (then ``mv`` is Table II's MV); per-frame
+    inputs give per-frame ``tm`` (whose mean is the combination's TM) and per-frame ``mv``,
+    which is eq. (7) of each frame and **not** Table II's MV.
     """
     m = {
         "mae_de": _num(gradnorm["mae_de"]),
@@ -154,3 +212,103 @@ def combine_tasks(
     m["tm"] = total_metric(m["mae_de"], m["iou_ss"], m["iou_ls"], m["iou_bevp"])
     m["mv"] = metric_variance(m["mae_de"], m["iou_ss"], m["iou_ls"], m["iou_bevp"])
     return {k: _out(v) for k, v in m.items()}
+
+
+# ----------------------------------------------------------------------------- field metrics
+@torch.no_grad()
+def class_confusion(pred: Tensor, target: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """Per-class ``(TP, FP, FN)`` counts (int64, (C,) each) of a multi-class map (SS, LS).
+
+    ``pred``: scores (B,C,H,W) or (B,V,C,H,W), the predicted class is the arg-max over C;
+    ``target``: the one-hot ground truth of the same shape, where an all-zero vector is a
+    pixel without a label (255 in the cache, e.g. an LS cell no LiDAR point reaches): such
+    pixels are left out. Sum the counts over the test set before :func:`class_iou`.
+    """
+    p, g = as_views(pred.detach()), as_views(target.detach())
+    if p.shape != g.shape:
+        raise ValueError(f"class_confusion: prediction {tuple(p.shape)} and target {tuple(g.shape)} differ")
+    n_cls = p.shape[2]
+    labelled = g.amax(dim=2) > 0.5                       # (B,V,H,W)
+    pc = p.argmax(dim=2)[labelled]
+    gc = g.argmax(dim=2)[labelled]
+    tp = torch.bincount(gc[pc == gc], minlength=n_cls)
+    fp = torch.bincount(pc, minlength=n_cls) - tp
+    fn = torch.bincount(gc, minlength=n_cls) - tp
+    return tp.long().cpu(), fp.long().cpu(), fn.long().cpu()
+
+
+@torch.no_grad()
+def multilabel_confusion(pred: Tensor, target: Tensor, threshold: float = 0.5) -> tuple[Tensor, Tensor, Tensor]:
+    """Per-channel ``(TP, FP, FN)`` counts (int64, (C,)) of multi-label masks (BEVP, (B,C,H,W)):
+    each class is its own binary problem, ``pred > t`` against ``target > t``."""
+    p, g = as_views(pred.detach()) > threshold, as_views(target.detach()) > threshold
+    if p.shape != g.shape:
+        raise ValueError(f"multilabel_confusion: prediction {tuple(p.shape)} and target {tuple(g.shape)} differ")
+    dims = (0, 1, 3, 4)
+    tp = (p & g).sum(dim=dims)
+    fp = (p & ~g).sum(dim=dims)
+    fn = (~p & g).sum(dim=dims)
+    return tp.long().cpu(), fp.long().cpu(), fn.long().cpu()
+
+
+def class_iou(tp: Any, fp: Any, fn: Any) -> np.ndarray:
+    """Per-class IoU = TP / (TP + FP + FN) (float64); NaN for a class with TP + FP + FN = 0,
+    i.e. absent from both prediction and ground truth."""
+    tp, fp, fn = (np.asarray(_num(x), dtype=np.float64) for x in (tp, fp, fn))
+    den = tp + fp + fn
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(den > 0, tp / np.where(den > 0, den, 1.0), np.nan)
+
+
+def mean_iou(ious: Any) -> float:
+    """mIoU: the mean of the per-class IoUs that are defined (absent classes, NaN, are left
+    out); NaN if no class is present at all."""
+    arr = np.asarray(ious, dtype=np.float64)
+    ok = np.isfinite(arr)
+    return float(arr[ok].mean()) if ok.any() else float("nan")
+
+
+#: The cache's depth is CARLA's logarithmic depth in [0, 1] (world/camera.py ``encode_depth``,
+#: nuscenes/projection.py ``carla_log_depth``): ``x = 1 + ln(d / 1000 m) / 5.70378``, so 1.0 is
+#: the 1000 m far plane and 0.0 is 1000 m * exp(-5.70378) = 3.33 m (everything nearer clips).
+DEPTH_FAR_M = 1000.0
+DEPTH_LOG_K = 5.70378
+
+
+def decode_log_depth(x: Tensor) -> Tensor:
+    """Metric depth (m) of the cache's normalised log depth: ``1000 m * exp((x - 1) * 5.70378)``
+    (x clamped to [0, 1], the encoding's range: 3.33 m .. 1000 m)."""
+    return DEPTH_FAR_M * torch.exp((x.double().clamp(0.0, 1.0) - 1.0) * DEPTH_LOG_K)
+
+
+def depth_valid_mask(target: Tensor) -> Tensor:
+    """Ground-truth pixels with a valid depth: ``0 < x < 1``. ``x = 0`` is "no depth" (a
+    nuScenes pixel no LiDAR point reaches is stored as 0) or nearer than the 3.33 m floor;
+    ``x = 1`` is the 1000 m far clip (sky / no hit in the simulated world)."""
+    return (target > 0.0) & (target < 1.0)
+
+
+@torch.no_grad()
+def depth_errors_per_sample(pred: Tensor, target: Tensor) -> dict[str, Tensor]:
+    """Per sample (B,): ``abs_rel`` = mean |d - d*| / d*, ``rmse_m`` = sqrt(mean (d - d*)^2)
+    in metres, ``delta_1.25`` = share of pixels with max(d/d*, d*/d) < 1.25, and ``n_valid``,
+    over the valid ground-truth pixels (:func:`depth_valid_mask`) of all views; d is the
+    decoded prediction, d* the decoded ground truth. A sample without valid pixels gives NaN."""
+    p, g = pred.detach(), target.detach()
+    if p.shape != g.shape:
+        raise ValueError(f"depth_errors_per_sample: prediction {tuple(p.shape)} and target {tuple(g.shape)} differ")
+    b = p.shape[0]
+    valid = depth_valid_mask(g).reshape(b, -1)
+    d, d_gt = decode_log_depth(p).reshape(b, -1), decode_log_depth(g).reshape(b, -1)
+    n = valid.sum(dim=1).double()
+    safe_n = n.clamp(min=1.0)
+    v = valid.double()
+    abs_rel = ((d - d_gt).abs() / d_gt * v).sum(dim=1) / safe_n
+    rmse = torch.sqrt(((d - d_gt) ** 2 * v).sum(dim=1) / safe_n)
+    ratio = torch.maximum(d / d_gt, d_gt / d)
+    delta = ((ratio < 1.25).double() * v).sum(dim=1) / safe_n
+    nan = torch.full_like(n, float("nan"))
+    out = {"abs_rel": abs_rel, "rmse_m": rmse, "delta_1.25": delta}
+    out = {k: torch.where(n > 0, x, nan).cpu() for k, x in out.items()}
+    out["n_valid"] = n.cpu()
+    return out

@@ -3,13 +3,14 @@
 The YAML is package data (``compact_perception/paper_numbers.yaml``); this module parses it
 into small typed records. A Table II task cell is a :class:`PaperCell` (mean and the variance
 over test frames; the paper prints ``<0.001`` for variances under its precision, kept as
-``var_below=True``). Anything the paper leaves blank is ``None``.
+``var_below=True``). Anything the paper leaves blank is ``None``. TM and MV of the paper's
+rows are recomputed (tests, claims) with :mod:`compact_perception.metrics`, the project's one
+implementation of eq. (6)-(7).
 """
 from __future__ import annotations
 
 import functools
 import logging
-import math
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -187,13 +188,3 @@ def _load_cached(path: Optional[str]) -> PaperNumbers:
 def load_paper_numbers(path: str | Path | None = None) -> PaperNumbers:
     """Load the paper's numbers (the packaged YAML unless ``path`` is given)."""
     return _load_cached(None if path is None else str(path))
-
-
-def combination_terms(mae_de: float, iou_ss: float, iou_ls: float, iou_bevp: float) -> tuple[float, float]:
-    """TM and MV (SPEC 6) from the four task scores: TM = MAE + sum(1 - IoU); MV = population
-    variance of the four terms."""
-    terms = [mae_de, 1.0 - iou_ss, 1.0 - iou_ls, 1.0 - iou_bevp]
-    tm = math.fsum(terms)
-    mean = tm / 4.0
-    mv = math.fsum((t - mean) ** 2 for t in terms) / 4.0
-    return tm, mv
