@@ -6,7 +6,11 @@ For each model id and dataset (A stands for the simulated sets, which share the 
 nuscenes for the nuScenes variants) builds the untrained network, and measures parameters,
 state_dict size, peak memory and FPS (params.benchmark.warmup / runs) at
 world.resolution at the params scale, on the GPU when there is one (train.device), else on
-the CPU. Writes results/benchmark/efficiency.json atomically.
+the CPU. For the compact models it also exports the untrained network to a temporary ONNX
+file and measures ONNX Runtime's batch-1 CPU latency beside PyTorch's (keys ``onnx_*``;
+``onnx_speedup`` = PyTorch CPU latency / ONNX Runtime latency, both on the CPU with the same
+threads; on a GPU machine PyTorch's CPU latency is measured for it as ``pytorch_cpu_latency_ms``);
+``--no-onnx`` skips that. Writes results/benchmark/efficiency.json atomically.
 """
 from __future__ import annotations
 
@@ -20,7 +24,7 @@ from compact_perception import io
 from compact_perception.config import MODEL_IDS
 from compact_perception.models import DATASETS, build_model
 from compact_perception.report.efficiency import (CPU_MEMORY_METHOD, CUDA_MEMORY_METHOD, device_name,
-                                                   dummy_batch, measure_model)
+                                                   dummy_batch, measure_fps, measure_model, measure_onnx)
 
 from ._common import start
 
@@ -33,6 +37,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--datasets", nargs="+", default=["A", "nuscenes"], choices=["A", "B", "C", "nuscenes"])
     ap.add_argument("--models", nargs="+", default=list(MODEL_IDS), choices=list(MODEL_IDS))
     ap.add_argument("--out", default="results/benchmark/efficiency.json")
+    ap.add_argument("--no-onnx", action="store_true", help="skip the ONNX Runtime figures of the compact models")
     args = ap.parse_args(argv)
     params = start(args.params)
     pref = params.train.device
@@ -54,7 +59,15 @@ def main(argv: list[str] | None = None) -> None:
             model = build_model(m, ds)
             batch = dummy_batch(model, n_seg=spec.n_seg, has_dvs=spec.has_dvs, resolution=S,
                                 n_views=spec.n_views, device=device, seed=params.seed)
-            out["models"][ds][m] = measure_model(model, batch, device, bp.warmup, bp.runs)
+            res = measure_model(model, batch, device, bp.warmup, bp.runs)
+            if m.startswith("compact") and not args.no_onnx:
+                cpu_ms = res["latency_ms"]
+                if device.type != "cpu":  # the ratio compares the two runtimes on the same CPU
+                    cpu_model, cpu_batch = model.to("cpu"), {k: v.cpu() for k, v in batch.items()}
+                    cpu_ms = measure_fps(cpu_model, cpu_batch, "cpu", bp.warmup, bp.runs)["latency_ms"]
+                    res["pytorch_cpu_latency_ms"] = cpu_ms
+                res.update(measure_onnx(model, batch, bp.warmup, bp.runs, pytorch_cpu_latency_ms=cpu_ms))
+            out["models"][ds][m] = res
             del model, batch
             if device.type == "cuda":
                 torch.cuda.empty_cache()

@@ -18,6 +18,11 @@ Methods (stated in every result so the report can quote them):
 - **speed**: :func:`measure_fps` -- ``warmup`` untimed calls, then ``runs`` timed calls, each
   bracketed by device synchronisation (``torch.cuda.synchronize`` on CUDA) so the clock reads
   finished work; the **median** latency gives FPS = 1000 / median_ms.
+- **ONNX Runtime** (issue 15, compact models): :func:`measure_onnx` exports the network to ONNX
+  (:func:`compact_perception.export.export_onnx`, a temporary file), checks ONNX Runtime's
+  outputs against PyTorch's (max abs difference) and times ONNX Runtime's CPU execution
+  provider at batch 1 the same way (warm-up excluded, median; ``run`` is synchronous), with
+  as many intra-op threads as PyTorch uses.
 """
 from __future__ import annotations
 
@@ -156,6 +161,41 @@ def measure_fps(model_fn_or_module: ModelLike, batch: Any, device: torch.device 
         "runs": runs,
         "device": device_name(device),
     }
+
+
+def measure_onnx(model: nn.Module, batch: Batch, warmup: int = 10, runs: int = 50,
+                 pytorch_cpu_latency_ms: float | None = None) -> dict[str, Any]:
+    """ONNX Runtime batch-1 CPU figures of ``model`` (module doc): ``onnx_fps``,
+    ``onnx_latency_ms`` (median), ``onnx_latency_ms_min``, ``onnx_max_abs_diff`` (largest
+    |ONNX Runtime - PyTorch| over the outputs), ``onnx_device``, ``onnxruntime`` and ``onnx_opset``;
+    with ``pytorch_cpu_latency_ms`` (PyTorch's batch-1 CPU median latency, same threads) also
+    ``onnx_speedup`` = PyTorch latency / ONNX Runtime latency. Without ``onnxruntime``
+    installed, or if the export fails, returns ``{"onnx_error": reason}``."""
+    import tempfile
+    from pathlib import Path
+
+    try:
+        from ..export import export_onnx, onnxruntime_latency
+
+        with tempfile.TemporaryDirectory(prefix="onnx_bench_") as tmp:
+            path = Path(tmp) / "model.onnx"
+            info = export_onnx(model, batch, path)
+            times = onnxruntime_latency(path, batch, warmup, runs, return_all=True)
+    except Exception as err:  # noqa: BLE001 - the PyTorch figures stand without ONNX ones
+        log.warning("%s: no ONNX Runtime figures (%s: %s)", type(model).__name__, type(err).__name__, err)
+        return {"onnx_error": f"{type(err).__name__}: {err}"}
+    ms = sorted(t * 1e3 for t in times)  # type: ignore[union-attr]
+    med = statistics.median(ms)
+    out: dict[str, Any] = {
+        "onnx_fps": 1e3 / med if med > 0 else float("inf"), "onnx_latency_ms": med, "onnx_latency_ms_min": ms[0],
+        "onnx_max_abs_diff": info["max_abs_diff_all"], "onnx_device": device_name("cpu"),
+        "onnxruntime": info["onnxruntime"], "onnx_opset": info["opset"],
+    }
+    if pytorch_cpu_latency_ms:
+        out["onnx_speedup"] = pytorch_cpu_latency_ms / med if med > 0 else None
+    log.info("%s: ONNX Runtime %.2f ms (%.2f FPS) on %s, max |diff| %.2g", type(model).__name__, med,
+             out["onnx_fps"], out["onnx_device"], out["onnx_max_abs_diff"])
+    return out
 
 
 def dummy_batch(model: nn.Module, *, n_seg: int, has_dvs: bool, resolution: int, n_views: int = 4,

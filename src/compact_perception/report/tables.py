@@ -6,23 +6,37 @@ prints as ``<0.001``); the CSV holds the raw numbers (separate mean / variance c
 
 Table II rows per dataset: Chen et al., PolarNet, GradNorm, Combination, 1L, 15L, 15L+MGN.
 The combination takes GradNorm's DE/SS, PolarNet's LS and Chen et al.'s BEVP, and its TM and
-MV are computed from those four means (SPEC 6: TM = MAE + sum(1 - IoU), MV = population
-variance of the four terms). A compact row's TM / MV are the means in its metrics file.
-The best value per column is bold (lowest MAE / TM / MV, highest IoU), compared at the
-printed precision so printed ties are all bold.
+MV are computed from those four means with :mod:`compact_perception.metrics` (eq. 6-7), like
+every compact row's (its metrics file holds TM and MV of its four test-set means), so all
+rows compare with each other and with the paper.
+
+Bold (lowest MAE / TM / MV, highest IoU) marks the best value of a column only where the
+paired bootstrap over test frames (and seeds; :mod:`compact_perception.stats`) separates it
+from the runner-up: the 95% interval of the difference excludes 0. Otherwise the best cell
+is not bold and gets a dagger and an "inconclusive" note. The combination's task cells are
+copies of its source models' and take no part in the task columns' comparison.
+
+``extra_metrics.{md,csv}`` holds the metrics beyond the paper's (per-class IoU / mIoU of SS,
+LS, BEVP; depth AbsRel, RMSE, delta < 1.25), from the ``class_iou`` / ``depth`` blocks of
+the metrics files.
 """
 from __future__ import annotations
 
 import csv
 import io as _io
 import logging
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Optional
 
+import pandas as pd
+
 from .. import io
-from .collect import Cell, DatasetScale, ModelResult
-from .paper import PaperCell, PaperNumbers, combination_terms
+from ..metrics import scores_from_means
+from ..stats import REPRODUCED, BootstrapResult, paired_bootstrap, stat_mean, stat_mv, stat_tm, verdict
+from .collect import COMBINATION_SOURCE, Cell, DatasetScale, ModelResult, ReportInputError, align
+from .paper import PaperCell, PaperNumbers
 
 log = logging.getLogger(__name__)
 
@@ -37,10 +51,6 @@ ROW_LABEL: dict[str, str] = {
     "combination": "Combination", "compact_1l": "1L", "compact_15l": "15L", "compact_15l_mgn": "15L+MGN",
 }
 DATASET_LABEL: dict[str, str] = {"A": "Set A", "B": "Set B", "C": "Set C", "nuscenes": "nuScenes"}
-#: The model each task of the combination comes from (paper section V-D).
-COMBINATION_SOURCE: dict[str, str] = {
-    "mae_de": "gradnorm_segnet", "iou_ss": "gradnorm_segnet", "iou_ls": "polarnet", "iou_bevp": "chen_bev",
-}
 COLUMN_MD: dict[str, str] = {
     "mae_de": "MAE_DE", "iou_ss": "IoU_SS", "iou_ls": "IoU_LS", "iou_bevp": "IoU_BEVP", "tm": "TM", "mv": "MV",
 }
@@ -51,6 +61,9 @@ COLUMN_TEX: dict[str, str] = {
 DECIMALS = 3
 NOT_APPLICABLE = "-"
 NOT_AVAILABLE = "n/a"
+INCONCLUSIVE_MARK = "†"
+#: Per-frame scores of every row of one dataset: row id -> runs (seeds), frame_id-indexed.
+RowFrames = dict[str, list[pd.DataFrame]]
 
 
 # ----------------------------------------------------------------------------- formatting
@@ -118,17 +131,19 @@ class Table2Row:
     cells: dict[str, Optional[Cell]]
     available: bool = True
     bold: set[str] = field(default_factory=set)
+    #: column -> why the best value of that column is not bold (bootstrap inconclusive / untested)
+    notes: dict[str, str] = field(default_factory=dict)
 
 
 def combination_row(dataset: str, results: dict[str, ModelResult]) -> Table2Row:
-    """GradNorm DE/SS + PolarNet LS + Chen BEVP; TM and MV from those four means."""
+    """GradNorm DE/SS + PolarNet LS + Chen BEVP; TM and MV (eq. 6-7) from those four means."""
     cells: dict[str, Optional[Cell]] = {}
     for col, src in COMBINATION_SOURCE.items():
         res = results.get(src)
         cells[col] = res.scores.get(col) if res else None
     if all(cells[c] is not None for c in TASK_COLUMNS):
-        tm, mv = combination_terms(*(cells[c].mean for c in TASK_COLUMNS))  # type: ignore[union-attr]
-        cells["tm"], cells["mv"] = Cell(tm), Cell(mv)
+        derived = scores_from_means({c: cells[c].mean for c in TASK_COLUMNS})  # type: ignore[union-attr]
+        cells["tm"], cells["mv"] = Cell(derived["tm"]), Cell(derived["mv"])
     else:
         cells["tm"] = cells["mv"] = None
     available = all(b in results for b in BASELINES)
@@ -138,38 +153,81 @@ def combination_row(dataset: str, results: dict[str, ModelResult]) -> Table2Row:
 
 
 def model_row(dataset: str, model: str, result: Optional[ModelResult]) -> Table2Row:
-    """A model's row from its metrics file (all ``None`` and unavailable if there is none)."""
+    """A model's row from its metrics file (all ``None`` and unavailable if there is none).
+
+    TM and MV are (re)computed from the row's four task means (eq. 6-7), exactly as for the
+    combination; a metrics file whose ``mv`` differs (an older file holding the mean of a
+    per-frame MV) is logged, and the table shows the paper's definition."""
     if result is None:
         return Table2Row(dataset, model, ROW_LABEL[model], {c: None for c in TABLE2_COLUMNS}, available=False)
     cells: dict[str, Optional[Cell]] = {c: result.scores.get(c) for c in TASK_COLUMNS}
+    derived = scores_from_means({c: cell.mean for c, cell in cells.items() if cell is not None})
     for c in ("tm", "mv"):
         s = result.scores.get(c)
-        cells[c] = None if s is None else Cell(s.mean)
+        if c in derived:
+            if s is not None and abs(s.mean - derived[c]) > 1e-9:
+                log.warning("results/%s/%s/metrics.json: %s %.6g is not eq. %s of the four means (%.6g); "
+                            "the table shows the latter (re-run evaluate)", dataset, model, c, s.mean,
+                            "6" if c == "tm" else "7", derived[c])
+            cells[c] = Cell(derived[c])
+        else:
+            cells[c] = None if s is None else Cell(s.mean)
     return Table2Row(dataset, model, ROW_LABEL[model], cells)
 
 
-def mark_best(rows: list[Table2Row], decimals: int = DECIMALS) -> None:
-    """Bold the best value per column (ties at the printed precision all bold)."""
+def column_bootstrap(best: str, other: str, col: str, frames: RowFrames) -> Optional[BootstrapResult]:
+    """Paired bootstrap of "row ``best`` beats row ``other`` on column ``col``" (positive =
+    it does) from their per-frame scores; ``None`` if either has no per-frame scores for it."""
+    cols = [col] if col in TASK_COLUMNS else list(TASK_COLUMNS)
+    runs = [frames.get(best) or [], frames.get(other) or []]
+    if not all(runs) or not all(all(c in df.columns for c in cols) for g in runs for df in g):
+        return None
+    try:
+        a, b = align(runs, cols)
+    except ReportInputError as err:
+        log.warning("Table II %s: %s vs %s: %s", col, best, other, err)
+        return None
+    stat = stat_mean if col in TASK_COLUMNS else stat_tm if col == "tm" else stat_mv
+    return paired_bootstrap(a, b, stat, lower_is_better=col in LOWER_IS_BETTER)
+
+
+def mark_best(rows: list[Table2Row], frames: Optional[RowFrames] = None) -> None:
+    """Bold the best value of each column where the bootstrap separates it from the runner-up
+    (95% interval of the difference above 0); otherwise note why it is not bold."""
+    frames = frames or {}
     for col in TABLE2_COLUMNS:
-        vals = [(r, round(r.cells[col].mean, decimals)) for r in rows  # type: ignore[union-attr]
-                if r.available and r.cells.get(col) is not None]
-        if not vals:
+        cands = [r for r in rows if r.available and r.cells.get(col) is not None
+                 and not (r.row_id == "combination" and col in TASK_COLUMNS)]
+        if not cands:
             continue
-        target = min(v for _, v in vals) if col in LOWER_IS_BETTER else max(v for _, v in vals)
-        for r, v in vals:
-            if v == target:
-                r.bold.add(col)
+        sign = 1.0 if col in LOWER_IS_BETTER else -1.0
+        order = sorted(cands, key=lambda r: sign * r.cells[col].mean)  # type: ignore[union-attr]
+        best = order[0]
+        if len(order) == 1:
+            best.bold.add(col)
+            continue
+        runner = order[1]
+        res = column_bootstrap(best.row_id, runner.row_id, col, frames)
+        if res is None:
+            best.notes[col] = f"best {COLUMN_MD[col]}, not tested against {runner.label} (no per-frame scores): not bold"
+        elif verdict(res.ci_low, res.ci_high) == REPRODUCED:
+            best.bold.add(col)
+        else:
+            best.notes[col] = (f"best {COLUMN_MD[col]} inconclusive against {runner.label}: difference "
+                               f"{res.estimate:.4f}, 95% CI [{res.ci_low:.4f}, {res.ci_high:.4f}]: not bold")
 
 
-def build_table2(results: dict[str, dict[str, ModelResult]]) -> dict[str, list[Table2Row]]:
-    """Rows per dataset in :data:`ROW_ORDER` (datasets with no results at all are skipped)."""
+def build_table2(results: dict[str, dict[str, ModelResult]],
+                 frames: Optional[dict[str, RowFrames]] = None) -> dict[str, list[Table2Row]]:
+    """Rows per dataset in :data:`ROW_ORDER` (datasets with no results at all are skipped);
+    ``frames[ds]``: per-frame scores per row id (``combination`` included) for the bold marks."""
     out: dict[str, list[Table2Row]] = {}
     for ds, res in results.items():
         if not res:
             continue
         rows = [combination_row(ds, res) if rid == "combination" else model_row(ds, rid, res.get(rid))
                 for rid in ROW_ORDER]
-        mark_best(rows)
+        mark_best(rows, (frames or {}).get(ds))
         out[ds] = rows
     return out
 
@@ -181,8 +239,16 @@ def _row_texts(row: Table2Row, latex: bool) -> list[str]:
             texts.append(NOT_AVAILABLE)
             continue
         t = fmt_cell(col, row.cells.get(col), latex)
+        if col in row.notes:
+            t += "$^\\dagger$" if latex else INCONCLUSIVE_MARK
         texts.append(_bold(t, latex) if col in row.bold else t)
     return texts
+
+
+def table2_notes(tables: dict[str, list[Table2Row]]) -> list[str]:
+    """One line per best value left without bold, sorted by dataset order and column."""
+    return [f"{DATASET_LABEL.get(ds, ds)}, {r.label}: {r.notes[c]}"
+            for ds, rows in tables.items() for c in TABLE2_COLUMNS for r in rows if c in r.notes]
 
 
 def table2_markdown(tables: dict[str, list[Table2Row]]) -> str:
@@ -191,9 +257,17 @@ def table2_markdown(tables: dict[str, list[Table2Row]]) -> str:
     for ds, rows in tables.items():
         for i, r in enumerate(rows):
             body.append([DATASET_LABEL.get(ds, ds) if i == 0 else "", r.label] + _row_texts(r, False))
-    note = ("\nmean ± variance over test frames; best per column in **bold** (lowest MAE_DE, TM, MV; "
-            "highest IoU). Combination = GradNorm (DE, SS) + PolarNet (LS) + Chen et al. (BEVP), TM and MV "
-            f"computed from those four scores. `{NOT_APPLICABLE}`: task not performed; `{NOT_AVAILABLE}`: no result.\n")
+    note = ("\nmean ± variance over test frames. TM = MAE_DE + Σ(1 − IoU) of the four test-set means (eq. 6; "
+            "equal to the mean of the per-frame TM); MV = population variance of those four mean terms (eq. 7), one "
+            "number per row, computed the same way for every row. Combination = GradNorm (DE, SS) + PolarNet (LS) + "
+            "Chen et al. (BEVP), TM and MV from those four means. **Bold**: the best value of the column (lowest "
+            "MAE_DE, TM, MV; highest IoU) where a paired bootstrap over the test frames (and seeds) puts the 95% "
+            "interval of its difference to the runner-up above 0; "
+            f"`{INCONCLUSIVE_MARK}`: the best value, not separated from the runner-up (inconclusive, not bold). "
+            f"`{NOT_APPLICABLE}`: task not performed; `{NOT_AVAILABLE}`: no result.\n")
+    notes = table2_notes(tables)
+    if notes:
+        note += "\n" + "".join(f"- {INCONCLUSIVE_MARK} {n}\n" for n in notes)
     return _md_table(header, body, ["---", "---"] + ["---:"] * len(TABLE2_COLUMNS)) + note
 
 
@@ -208,14 +282,15 @@ def table2_latex(tables: dict[str, list[Table2Row]]) -> str:
             first = tex_escape(DATASET_LABEL.get(ds, ds)) if i == 0 else ""
             lines.append(f"{first} & {tex_escape(r.label)} & " + " & ".join(_row_texts(r, True)) + " \\\\")
     lines += ["\\bottomrule", "\\end{tabular}", ""]
-    return "\n".join(lines)
+    lines += [f"% $^\\dagger$ {tex_escape(n)}" for n in table2_notes(tables)]
+    return "\n".join(lines) + ("\n" if table2_notes(tables) else "")
 
 
 def table2_csv(tables: dict[str, list[Table2Row]]) -> str:
     header = ["dataset", "row_id", "label", "available"]
     for c in TASK_COLUMNS:
         header += [f"{c}_mean", f"{c}_var"]
-    header += ["tm", "mv", "bold"]
+    header += ["tm", "mv", "bold", "best_inconclusive"]
     body = []
     for ds, rows in tables.items():
         for r in rows:
@@ -227,6 +302,7 @@ def table2_csv(tables: dict[str, list[Table2Row]]) -> str:
                 cell = r.cells.get(c)
                 line.append(None if cell is None else cell.mean)
             line.append(";".join(c for c in TABLE2_COLUMNS if c in r.bold))
+            line.append(";".join(c for c in TABLE2_COLUMNS if c in r.notes))
             body.append(line)
     return _csv_text(header, body)
 
@@ -239,8 +315,9 @@ def write_table(out_dir: Path, stem: str, md: str, tex: str, csv_text: str) -> l
     return paths
 
 
-def write_table2(results: dict[str, dict[str, ModelResult]], out_dir: Path) -> list[Path]:
-    tables = build_table2(results)
+def write_table2(results: dict[str, dict[str, ModelResult]], out_dir: Path,
+                 frames: Optional[dict[str, RowFrames]] = None) -> list[Path]:
+    tables = build_table2(results, frames)
     return write_table(out_dir, "table2", table2_markdown(tables), table2_latex(tables), table2_csv(tables))
 
 
@@ -259,10 +336,12 @@ class Table3Row:
     latency_ms: Optional[float] = None
     device: Optional[str] = None
     available: bool = True
+    onnx_fps: Optional[float] = None            # ONNX Runtime, batch 1, CPU (compact models; issue 15)
+    onnx_latency_ms: Optional[float] = None
 
 
 TABLE3_FIELDS: tuple[str, ...] = ("params", "total_params", "size_mb", "total_size_mb", "peak_memory_mb",
-                                  "fps", "latency_ms", "device")
+                                  "fps", "latency_ms", "onnx_fps", "onnx_latency_ms", "device")
 
 
 def build_table3(efficiency: dict[str, Any]) -> dict[str, list[Table3Row]]:
@@ -270,6 +349,7 @@ def build_table3(efficiency: dict[str, Any]) -> dict[str, list[Table3Row]]:
 
     The combination sums the three baselines' parameters, sizes, peak memories and latencies
     (the models run one after the other on the same frame); its FPS is 1000 / summed latency.
+    ONNX Runtime FPS / latency come from the ``onnx_*`` keys (compact models) where measured.
     """
     out: dict[str, list[Table3Row]] = {}
     for ds, models in (efficiency.get("models") or {}).items():
@@ -295,7 +375,9 @@ def build_table3(efficiency: dict[str, Any]) -> dict[str, list[Table3Row]]:
             own = rid in COMPACT
             rows.append(Table3Row(ds, rid, label, int(m["params"]), int(m["params"]) if own else None,
                                   float(m["size_mb"]), float(m["size_mb"]) if own else None,
-                                  float(m["peak_memory_mb"]), float(m["fps"]), float(m["latency_ms"]), m.get("device")))
+                                  float(m["peak_memory_mb"]), float(m["fps"]), float(m["latency_ms"]), m.get("device"),
+                                  onnx_fps=None if m.get("onnx_fps") is None else float(m["onnx_fps"]),
+                                  onnx_latency_ms=None if m.get("onnx_latency_ms") is None else float(m["onnx_latency_ms"])))
         out[ds] = rows
     return out
 
@@ -306,7 +388,7 @@ def _t3_texts(r: Table3Row) -> list[str]:
     return [
         "" if r.params is None else f"{r.params:,}", "" if r.total_params is None else f"{r.total_params:,}",
         fmt_num(r.size_mb), fmt_num(r.total_size_mb), fmt_num(r.peak_memory_mb, 1), fmt_num(r.fps, 2),
-        fmt_num(r.latency_ms, 2), r.device or "",
+        fmt_num(r.latency_ms, 2), fmt_num(r.onnx_fps, 2), fmt_num(r.onnx_latency_ms, 2), r.device or "",
     ]
 
 
@@ -314,7 +396,8 @@ def _t3_header(efficiency: dict[str, Any]) -> list[str]:
     gpu = bool(efficiency.get("is_gpu"))
     mem = "GPU memory (MB)" if gpu else "Peak memory, CPU estimate (MB)"
     return ["Params", "Total params", "Size (MB)", "Total size (MB)", mem,
-            "FPS" if gpu else "FPS (CPU)", "Latency (ms)", "Device"]
+            "FPS" if gpu else "FPS (CPU)", "Latency (ms)", "ONNX Runtime FPS (CPU)", "ONNX Runtime latency (ms)",
+            "Device"]
 
 
 def _t3_note(efficiency: dict[str, Any]) -> str:
@@ -326,6 +409,14 @@ def _t3_note(efficiency: dict[str, Any]) -> str:
     if not gpu:
         s += (" **No GPU on this machine**: FPS and latency are CPU figures, not comparable with the paper's "
               "GPU (NVIDIA GTX 1080 Ti) numbers.")
+    onnx = [m for models in (efficiency.get("models") or {}).values() for m in models.values()
+            if isinstance(m, dict) and m.get("onnx_latency_ms") is not None]
+    if onnx:
+        worst = max(float(m.get("onnx_max_abs_diff") or 0.0) for m in onnx)
+        s += (f" ONNX Runtime {onnx[0].get('onnxruntime', '')} (CPU execution provider, "
+              f"{onnx[0].get('onnx_device', 'CPU')}, opset {onnx[0].get('onnx_opset', '')}): the compact models "
+              f"exported to ONNX, same batch-1 protocol; largest |ONNX Runtime - PyTorch| output difference "
+              f"{worst:.1e}.")
     return s
 
 
@@ -335,7 +426,7 @@ def table3_markdown(tables: dict[str, list[Table3Row]], efficiency: dict[str, An
     for ds, rows in tables.items():
         for i, r in enumerate(rows):
             body.append([_t3_group_label(ds) if i == 0 else "", r.label] + _t3_texts(r))
-    return _md_table(header, body, ["---", "---"] + ["---:"] * 7 + ["---"]) + "\n" + _t3_note(efficiency) + "\n"
+    return _md_table(header, body, ["---", "---"] + ["---:"] * 9 + ["---"]) + "\n" + _t3_note(efficiency) + "\n"
 
 
 def _t3_group_label(ds: str) -> str:
@@ -346,7 +437,7 @@ def table3_latex(tables: dict[str, list[Table3Row]], efficiency: dict[str, Any])
     header = ["Dataset", "Model"] + _t3_header(efficiency)
     lines = ["% Table III (reproduced). Requires \\usepackage{booktabs}.",
              "% " + _t3_note(efficiency).replace("**", ""),
-             "\\begin{tabular}{ll" + "r" * 7 + "l}", "\\toprule",
+             "\\begin{tabular}{ll" + "r" * 9 + "l}", "\\toprule",
              " & ".join(tex_escape(h) for h in header) + " \\\\", "\\midrule"]
     for k, (ds, rows) in enumerate(tables.items()):
         if k:
@@ -516,3 +607,130 @@ def write_comparison(paper: PaperNumbers, table2: dict[str, list[Table2Row]],
     rows = compare(paper, table2, table3)
     return write_table(out_dir, "paper_vs_reproduced", comparison_markdown(rows, lines),
                        comparison_latex(rows, lines), comparison_csv(rows))
+
+
+# ----------------------------------------------------------------------------- metrics beyond the paper
+EXTRA_TASKS: tuple[str, ...] = ("ss", "ls", "bevp")
+EXTRA_DEPTH: tuple[str, ...] = ("abs_rel", "rmse_m", "delta_1.25")
+EXTRA_MD: dict[str, str] = {"ss": "mIoU_SS", "ls": "mIoU_LS", "bevp": "mIoU_BEVP", "abs_rel": "AbsRel",
+                            "rmse_m": "RMSE (m)", "delta_1.25": "δ<1.25"}
+
+
+@dataclass
+class ExtraRow:
+    """One model's metrics beyond the paper's: mIoU (and classes counted) per segmentation
+    task; depth errors as (mean, variance over frames)."""
+
+    dataset: str
+    row_id: str
+    label: str
+    miou: dict[str, Optional[float]] = field(default_factory=dict)
+    n_classes: dict[str, int] = field(default_factory=dict)
+    per_class: dict[str, dict[str, Optional[float]]] = field(default_factory=dict)
+    depth: dict[str, Optional[Cell]] = field(default_factory=dict)
+
+
+def _opt_float(v: Any, where: str) -> Optional[float]:
+    if v is None:
+        return None
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)):
+        raise ReportInputError(f"{where}: expected a finite number or null, got {v!r}")
+    return float(v)
+
+
+def build_extra_rows(results: dict[str, dict[str, ModelResult]]) -> list[ExtraRow]:
+    """Rows (dataset order, then :data:`ROW_ORDER`) of the models whose metrics files carry a
+    ``class_iou`` or ``depth`` block."""
+    out: list[ExtraRow] = []
+    for ds, res in results.items():
+        for rid in ROW_ORDER:
+            r = res.get(rid)
+            if r is None or not r.extra:
+                continue
+            where = f"results/{ds}/{rid}/metrics.json"
+            row = ExtraRow(ds, rid, ROW_LABEL.get(rid, rid))
+            for t in EXTRA_TASKS:
+                blk = (r.extra.get("class_iou") or {}).get(t)
+                if not isinstance(blk, dict):
+                    continue
+                row.miou[t] = _opt_float(blk.get("miou"), f"{where}: class_iou.{t}.miou")
+                row.n_classes[t] = int(blk.get("n_classes_in_miou") or 0)
+                row.per_class[t] = {str(k): _opt_float(v, f"{where}: class_iou.{t}.classes.{k}")
+                                    for k, v in (blk.get("classes") or {}).items()}
+            dep = r.extra.get("depth") or {}
+            for k in EXTRA_DEPTH:
+                v = dep.get(k)
+                mean = _opt_float(v.get("mean"), f"{where}: depth.{k}.mean") if isinstance(v, dict) else None
+                if mean is not None:
+                    row.depth[k] = Cell(mean, _opt_float(v.get("var"), f"{where}: depth.{k}.var"))
+            out.append(row)
+    return out
+
+
+def _extra_texts(r: ExtraRow) -> list[str]:
+    texts = []
+    for t in EXTRA_TASKS:
+        if t not in r.miou:
+            texts.append(NOT_APPLICABLE)
+        else:
+            v = r.miou[t]
+            texts.append(NOT_AVAILABLE if v is None else f"{v:.3f} ({r.n_classes[t]})")
+    for k in EXTRA_DEPTH:
+        c = r.depth.get(k)
+        if c is None:
+            texts.append(NOT_APPLICABLE)
+        else:
+            nd = 2 if k == "rmse_m" else 3
+            texts.append(f"{c.mean:.{nd}f}" + ("" if c.var is None else f" ± {c.var:.{nd}f}"))
+    return texts
+
+
+def extra_markdown(rows: list[ExtraRow]) -> str:
+    header = ["Dataset", "Model"] + [EXTRA_MD[c] for c in EXTRA_TASKS + EXTRA_DEPTH]
+    body, last = [], None
+    for r in rows:
+        body.append([DATASET_LABEL.get(r.dataset, r.dataset) if r.dataset != last else "", r.label] + _extra_texts(r))
+        last = r.dataset
+    note = ("\nMetrics the field reports, beside the paper's (not in the paper; Table II's columns are unchanged). "
+            "mIoU: per-class IoU = TP / (TP + FP + FN) from counts summed over all test frames, averaged over the "
+            "classes present; in brackets the number of classes counted: a class absent from both prediction and "
+            "ground truth has no IoU and is left out. SS and LS: predicted class = arg-max, pixels without a label "
+            "left out; BEVP: each class a binary mask (> 0.5). Depth: metric depth d = 1000 m · exp((x − 1) · 5.70378) "
+            "decoded from the cache's CARLA log depth x ∈ [0, 1] (the world's and the nuScenes ingest's encoding; "
+            "prediction clamped to [0, 1], i.e. 3.33 m to 1000 m); pixels with ground truth x = 0 (no depth) or "
+            "x = 1 (1000 m far clip, sky) left out; AbsRel, RMSE and δ<1.25 per frame over the valid pixels of the "
+            "four views, shown as mean ± variance over frames. Per-class IoUs: `extra_metrics_per_class.csv`. "
+            f"`{NOT_APPLICABLE}`: task not performed; `{NOT_AVAILABLE}`: no class present.\n")
+    return _md_table(header, body, ["---", "---"] + ["---:"] * (len(header) - 2)) + note
+
+
+def extra_csv(rows: list[ExtraRow]) -> str:
+    header = ["dataset", "row_id", "label"]
+    header += [f"miou_{t}" for t in EXTRA_TASKS] + [f"n_classes_{t}" for t in EXTRA_TASKS]
+    for k in EXTRA_DEPTH:
+        header += [f"{k}_mean", f"{k}_var"]
+    body = []
+    for r in rows:
+        line: list[Any] = [r.dataset, r.row_id, r.label]
+        line += [r.miou.get(t) for t in EXTRA_TASKS] + [r.n_classes.get(t) for t in EXTRA_TASKS]
+        for k in EXTRA_DEPTH:
+            c = r.depth.get(k)
+            line += [None, None] if c is None else [c.mean, c.var]
+        body.append(line)
+    return _csv_text(header, body)
+
+
+def extra_per_class_csv(rows: list[ExtraRow]) -> str:
+    body = [[r.dataset, r.row_id, t, i, name, v] for r in rows for t in EXTRA_TASKS
+            for i, (name, v) in enumerate((r.per_class.get(t) or {}).items())]
+    return _csv_text(["dataset", "row_id", "task", "class_index", "class", "iou"], body)
+
+
+def write_extra_metrics(results: dict[str, dict[str, ModelResult]], out_dir: Path) -> list[Path]:
+    """``extra_metrics.{md,csv}`` and ``extra_metrics_per_class.csv``; returns the paths."""
+    rows = build_extra_rows(results)
+    out = {Path(out_dir) / "extra_metrics.md": extra_markdown(rows), Path(out_dir) / "extra_metrics.csv": extra_csv(rows),
+           Path(out_dir) / "extra_metrics_per_class.csv": extra_per_class_csv(rows)}
+    for path, text in out.items():
+        io.write_text(path, text)
+    return list(out)

@@ -14,7 +14,14 @@ class LossWeighting:
 
     ``total`` implements eq. (8) with the weights as constants; every hook is a no-op.
     Subclasses override :meth:`before_backward` / :meth:`on_epoch_end` and extend the state.
+
+    ``grad_scale``: the loss scale of the trainer's float16 ``GradScaler`` (the trainer sets it
+    before every :meth:`before_backward`; 1.0 = no scaling, the default). Weightings that take
+    gradients of the losses themselves (GradNorm, MGN) scale by it and unscale their result,
+    so float16 gradients do not underflow (:mod:`compact_perception.precision`).
     """
+
+    grad_scale: float = 1.0
 
     def __init__(
         self,

@@ -4,6 +4,7 @@ Shared machinery with the original GradNorm (:mod:`.gradnorm`) lives in :class:`
 """
 from __future__ import annotations
 
+from contextlib import AbstractContextManager, nullcontext
 from typing import Any, Mapping, Sequence
 
 import torch
@@ -12,7 +13,25 @@ from torch import Tensor, nn
 from ..config import ModelRecipe
 from .base import LossWeighting, shared_weights
 
-__all__ = ["GradNormCore", "MGNWeighting"]
+__all__ = ["GradNormCore", "MGNWeighting", "full_precision"]
+
+_LOW = (torch.float16, torch.bfloat16)
+
+
+def full_precision(losses: Mapping[str, Tensor]) -> AbstractContextManager[Any]:
+    """Autocast switched off on the losses' device while the gradient norms are taken (mixed
+    precision, issue 15): the norms, G_i and L_MGN are then computed in float32 or wider
+    whatever the caller's context. A no-op context where autocast is not on (float32 runs)."""
+    first = next(iter(losses.values()), None)
+    dev = first.device.type if isinstance(first, Tensor) else "cpu"
+    if torch.is_autocast_enabled(dev):
+        return torch.autocast(dev, enabled=False)
+    return nullcontext()
+
+
+def _at_least_float32(x: Tensor) -> Tensor:
+    """``x`` in float32 when it is float16 / bfloat16; otherwise ``x`` itself (no new node)."""
+    return x.float() if x.dtype in _LOW else x
 
 
 class GradNormCore(LossWeighting):
@@ -33,6 +52,12 @@ class GradNormCore(LossWeighting):
        ``w <- T w / sum(w)``. A weight <= 0 would switch a task off or make training *maximise*
        its loss, and eq. (15) is undefined for ``sum w <= 0``; the floor keeps every task in play
        with a tiny weight (>= floor T / sum w > 0 after renormalising) and keeps sum w = T exactly.
+
+    Mixed precision (issue 15): the norms are taken with autocast off (:func:`full_precision`),
+    from losses in float32 or wider, and reduced in float64; under a float16 ``GradScaler`` the
+    losses are multiplied by ``grad_scale`` before differentiation and the norms divided by it
+    (a non-finite scaled norm is taken again unscaled). With ``grad_scale == 1`` and float32
+    losses the computation is exactly the float32 one.
     """
 
     def __init__(
@@ -78,17 +103,28 @@ class GradNormCore(LossWeighting):
     def _grad_norms(self, losses: Mapping[str, Tensor], model: nn.Module) -> Tensor:
         """``n_i = ||grad_W L_i||_2`` (float64, (T,)); writes no ``.grad``."""
         names = self._shared_names(model)
+        scale = float(self.grad_scale)
         norms = []
-        for t in self.tasks:
-            W = shared_weights(model, names[t])
-            L = losses[t]
-            if not L.requires_grad:
-                norms.append(0.0)
-                continue
-            grads = torch.autograd.grad(L, W, retain_graph=True, allow_unused=True)
-            sq = sum(float(g.detach().double().pow(2).sum()) for g in grads if g is not None)
-            norms.append(sq ** 0.5)
+        with full_precision(losses):
+            for t in self.tasks:
+                W = shared_weights(model, names[t])
+                L = _at_least_float32(losses[t])
+                if not L.requires_grad:
+                    norms.append(0.0)
+                    continue
+                if scale != 1.0:
+                    n = self._norm(L * scale, W) / scale
+                    norms.append(n if n == n and n != float("inf") else self._norm(L, W))
+                else:
+                    norms.append(self._norm(L, W))
         return torch.tensor(norms, dtype=torch.float64)
+
+    @staticmethod
+    def _norm(L: Tensor, W: list[nn.Parameter]) -> float:
+        """``||grad_W L||_2``, squares summed in float64; the graph is retained."""
+        grads = torch.autograd.grad(L, W, retain_graph=True, allow_unused=True)
+        sq = sum(float(g.detach().double().pow(2).sum()) for g in grads if g is not None)
+        return sq ** 0.5
 
     def _targets(self, G: Tensor, L: Tensor) -> tuple[Tensor, Tensor]:
         """Eq. (10)-(14): relative inverse rates r and the detached targets ``G_avg r^alpha``."""
@@ -182,22 +218,31 @@ class MGNWeighting(GradNormCore):
         names = self._shared_names(model)
         L = self._loss_vector(losses)
         ref = losses[self.tasks[0]]
-        w = self.w.detach().to(device=ref.device, dtype=ref.dtype).requires_grad_(True)
+        scale = float(self.grad_scale)  # float16 GradScaler: scale in, unscale out (class doc)
+        # w (and so G, L_MGN) in float32 or wider, even for float16 / bfloat16 losses
+        w = self.w.detach().to(device=ref.device, dtype=torch.promote_types(ref.dtype, torch.float32))
+        w.requires_grad_(True)
         Gs = []
-        for i, t in enumerate(self.tasks):
-            W = shared_weights(model, names[t])
-            Li = losses[t]
-            if not Li.requires_grad:
-                Gs.append(w[i] * 0.0)
-                continue
-            grads = torch.autograd.grad(w[i] * Li, W, retain_graph=True, create_graph=True, allow_unused=True)
-            sq = sum((g.pow(2).sum() for g in grads if g is not None), w[i] * 0.0)
-            Gs.append(sq.clamp_min(1e-30).sqrt())  # no inf gradient at a zero norm
-        G = torch.stack(Gs)
-        r, target = self._targets(G.detach().double().cpu(), L)
-        l_mgn = (target.to(G) - G).abs().sum()
-        l_mgn.backward(retain_graph=True)  # into w.grad AND the network's .grad (authors' code)
-        g = w.grad.detach().double().cpu() + L  # + dL_total/dw_i = L_i
+        with full_precision(losses):
+            for i, t in enumerate(self.tasks):
+                W = shared_weights(model, names[t])
+                Li = _at_least_float32(losses[t])
+                if not Li.requires_grad:
+                    Gs.append(w[i] * 0.0)
+                    continue
+                wl = w[i] * Li if scale == 1.0 else w[i] * Li * scale
+                grads = torch.autograd.grad(wl, W, retain_graph=True, create_graph=True, allow_unused=True)
+                sq = sum((_at_least_float32(g).pow(2).sum() for g in grads if g is not None), w[i] * 0.0)
+                Gi = sq.clamp_min(1e-30).sqrt()  # no inf gradient at a zero norm
+                Gs.append(Gi if scale == 1.0 else Gi / scale)
+            G = torch.stack(Gs)
+            r, target = self._targets(G.detach().double().cpu(), L)
+            l_mgn = (target.to(G) - G).abs().sum()
+            # into w.grad AND the network's .grad (authors' code); scaled like the total loss so
+            # the GradScaler's unscale_ of .grad leaves the second-order terms at their value
+            (l_mgn if scale == 1.0 else l_mgn * scale).backward(retain_graph=True)
+        gw = w.grad.detach().double().cpu()
+        g = (gw if scale == 1.0 else gw / scale) + L  # + dL_total/dw_i = L_i
         self.last = {"G": G.detach().double().cpu(), "r": r, "target": target, "L": L,
                      "l_grad": float(l_mgn.detach()), "grad_w": g}
         return g

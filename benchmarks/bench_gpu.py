@@ -1,0 +1,84 @@
+"""GPU benchmark path (issue 15): batch-1 inference of a model with device synchronisation,
+warm-up, bf16/fp16 autocast, channels-last and CUDA graphs (optionally torch.compile).
+
+    .venv/bin/python benchmarks/bench_gpu.py [--model compact_15l] [--dataset A] [--resolution 128]
+        [--warmup 10] [--runs 50] [--compile] [--device auto|cpu|cuda]
+
+On a CUDA device it times float32, fp16 and (where supported) bf16 autocast, the fastest
+precision with channels-last, and CUDA graphs of float32 and of the fastest precision. On a
+machine without a GPU the same code path runs on the CPU (float32, bf16 autocast,
+channels-last; CUDA graphs need CUDA and are skipped) and the output says "no GPU: CPU figures".
+Timing: :func:`compact_perception.timing.benchmark_variants` (warm-up calls untimed, the device
+synchronised before and after every timed call, median latency); each variant's outputs are
+compared with float32 eager (max abs difference).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import torch
+
+from compact_perception.models import DATASETS, build_model
+from compact_perception.precision import cpu_has_native_bf16
+from compact_perception.report.efficiency import device_name, dummy_batch
+from compact_perception.timing import Variant, benchmark_variants, default_variants
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--model", default="compact_15l")
+    ap.add_argument("--dataset", default="A")
+    ap.add_argument("--resolution", type=int, default=128)
+    ap.add_argument("--warmup", type=int, default=10)
+    ap.add_argument("--runs", type=int, default=50)
+    ap.add_argument("--compile", action="store_true", help="add torch.compile variants")
+    ap.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"])
+    ap.add_argument("--threads", type=int, default=None, help="torch intra-op threads on a CPU")
+    ap.add_argument("--json", default=None, help="also write the results to this JSON file")
+    args = ap.parse_args()
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    if args.device == "cuda" and not torch.cuda.is_available():
+        raise SystemExit("error: --device cuda but no CUDA device is available")
+    device = torch.device("cuda" if args.device != "cpu" and torch.cuda.is_available() else "cpu")
+    spec = DATASETS[args.dataset]
+    torch.manual_seed(0)
+    model = build_model(args.model, args.dataset).eval()
+    batch = dummy_batch(model, n_seg=spec.n_seg, has_dvs=spec.has_dvs, resolution=args.resolution, device=device)
+    variants = default_variants(device)
+    if args.compile:
+        best = variants[-1].precision if device.type == "cuda" else "fp32"
+        variants += [Variant("fp32+compile", compile=True), Variant(f"{best}+compile", best, compile=True)]
+    if device.type == "cpu":
+        print(f"no GPU: CPU figures ({device_name(device)}, {torch.backends.cpu.get_cpu_capability()}, "
+              f"native bf16: {cpu_has_native_bf16()})")
+    else:
+        print(f"GPU: {device_name(device)} (compute capability {'.'.join(map(str, torch.cuda.get_device_capability()))})")
+    print(f"{args.model} on {args.dataset}, batch 1, {args.resolution}x{args.resolution} px, "
+          f"{args.warmup} warm-up + median of {args.runs} runs, torch {torch.__version__}")
+    t0 = time.perf_counter()
+    results = benchmark_variants(model, batch, device, variants, args.warmup, args.runs)
+    print(f"  {'variant':<34s} {'latency ms':>10s} {'FPS':>9s} {'vs fp32':>8s} {'max|diff|':>10s}")
+    for r in results:
+        if "error" in r:
+            print(f"  {r['name']:<34s} failed: {r['error']}")
+            continue
+        note = " " + r["note"] if r.get("note") else ""
+        if r.get("compile") and not r.get("compiled"):
+            note += " (torch.compile unavailable: eager)"
+        print(f"  {r['name']:<34s} {r['latency_ms']:10.2f} {r['fps']:9.2f} {r.get('speedup', float('nan')):7.2f}x "
+              f"{r['max_abs_diff']:10.2e}{note}")
+    ok = [r for r in results if "fps" in r and r["name"] != "fp32"]
+    if ok:
+        best_r = max(ok, key=lambda r: r["fps"])
+        print(f"fastest/float32 batch-1 ratio: {best_r.get('speedup', float('nan')):.2f} ({best_r['name']})")
+    print(f"(total {time.perf_counter() - t0:.0f} s)")
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump({"device": device_name(device), "is_gpu": device.type == "cuda", "results": results}, fh, indent=1)
+
+
+if __name__ == "__main__":
+    main()

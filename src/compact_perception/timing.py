@@ -1,0 +1,164 @@
+"""Device-generic batch-1 inference timing for the GPU benchmark path (issue 15).
+
+:func:`build_inference` turns a model and a batch-1 input into a callable for one of the
+variants the benchmark compares -- precision (``fp32``, ``bf16``, ``fp16`` autocast),
+channels-last, ``torch.compile`` and CUDA graphs -- and :func:`benchmark_variants` times
+each with :func:`compact_perception.report.efficiency.measure_fps` (warm-up excluded, the
+device synchronised around every timed call, median latency) and checks its outputs against
+float32 eager.
+
+The same code runs on a CPU: CUDA graphs are CUDA-only and are then skipped (the result says
+so), reduced precision runs through CPU autocast (emulated on CPUs without native bf16).
+
+CUDA graphs: the model is run three times on a side stream (warm-up, as the CUDA-graph
+documentation requires before capture), then one forward is captured into a
+``torch.cuda.CUDAGraph`` with static input tensors; a timed call copies the batch into the
+static inputs and replays the graph (outputs are the graph's static outputs).
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import asdict, dataclass
+from typing import Any, Callable, Mapping
+
+import torch
+from torch import Tensor, nn
+
+from .precision import autocast_context, batch_to_channels_last, maybe_compile, to_channels_last
+from .report.efficiency import device_name, measure_fps, synchronize
+
+log = logging.getLogger(__name__)
+
+__all__ = ["Variant", "benchmark_variants", "build_inference", "default_variants", "max_abs_diff"]
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One way of running inference: precision, memory format, compiler, CUDA graph."""
+
+    name: str
+    precision: str = "fp32"
+    channels_last: bool = False
+    compile: bool = False
+    cuda_graph: bool = False
+
+
+def default_variants(device: torch.device | str) -> list[Variant]:
+    """The variants the GPU benchmark compares: float32 eager, bf16 and fp16 autocast (bf16 only
+    where the device runs it), channels-last + the fastest precision, and on CUDA a CUDA graph of
+    float32 and of the reduced precision. On a CPU: fp32, bf16, channels-last, both."""
+    dev = torch.device(device)
+    if dev.type == "cuda":
+        low = ["fp16"] + (["bf16"] if torch.cuda.is_bf16_supported(including_emulation=False) else [])
+        best = "bf16" if "bf16" in low else "fp16"
+        out = [Variant("fp32")] + [Variant(p, precision=p) for p in low]
+        out += [Variant(f"{best}+channels_last", best, channels_last=True),
+                Variant("fp32+cuda_graph", cuda_graph=True),
+                Variant(f"{best}+cuda_graph", best, cuda_graph=True),
+                Variant(f"{best}+channels_last+cuda_graph", best, channels_last=True, cuda_graph=True)]
+        return out
+    return [Variant("fp32"), Variant("bf16", "bf16"), Variant("channels_last", channels_last=True),
+            Variant("bf16+channels_last", "bf16", channels_last=True)]
+
+
+def _outputs(out: Any) -> dict[str, Tensor]:
+    if isinstance(out, Mapping):
+        return {k: v for k, v in out.items() if isinstance(v, Tensor)}
+    if isinstance(out, Tensor):
+        return {"out": out}
+    return {str(i): v for i, v in enumerate(out) if isinstance(v, Tensor)}
+
+
+def max_abs_diff(a: Any, b: Any) -> float:
+    """Largest ``|a - b|`` over the tensors both outputs share (compared in float32)."""
+    oa, ob = _outputs(a), _outputs(b)
+    diffs = [float((oa[k].float() - ob[k].float()).abs().max()) for k in oa if k in ob and oa[k].numel()]
+    return max(diffs) if diffs else 0.0
+
+
+def _cuda_graph_fn(fn: Callable[[Any], Any], batch: Mapping[str, Tensor], device: torch.device,
+                   warmup: int = 3) -> Callable[[Mapping[str, Tensor]], Any]:
+    """Capture ``fn(batch)`` into a CUDA graph (module doc); returns the replaying callable."""
+    static = {k: v.clone() for k, v in batch.items()}
+    stream = torch.cuda.Stream(device)
+    stream.wait_stream(torch.cuda.current_stream(device))
+    with torch.cuda.stream(stream), torch.inference_mode():
+        for _ in range(warmup):
+            fn(static)
+    torch.cuda.current_stream(device).wait_stream(stream)
+    graph = torch.cuda.CUDAGraph()
+    with torch.cuda.graph(graph), torch.inference_mode():
+        static_out = fn(static)
+
+    def replay(b: Mapping[str, Tensor]) -> Any:
+        for k, v in b.items():
+            if k in static and v.data_ptr() != static[k].data_ptr():
+                static[k].copy_(v)
+        graph.replay()
+        return static_out
+
+    return replay
+
+
+def build_inference(model: nn.Module, batch: Mapping[str, Tensor], device: torch.device | str,
+                    variant: Variant) -> tuple[Callable[[Mapping[str, Tensor]], Any], dict[str, Any], dict[str, Tensor]]:
+    """``(fn, info, batch)`` for ``variant``: ``fn(batch)`` runs one inference forward of ``model``
+    (moved to ``device``, eval mode) under the variant's autocast, memory format, compiler and
+    CUDA graph; ``info`` records what actually ran (``cuda_graph`` False on a CPU, ``compiled``
+    False after a compiler fallback); ``batch`` is the input in the variant's memory format."""
+    dev = torch.device(device)
+    model = model.to(dev).eval()
+    if variant.channels_last:
+        model = to_channels_last(model)
+        batch = batch_to_channels_last(batch)
+    else:
+        model = model.to(memory_format=torch.contiguous_format)
+    batch = {k: v.to(dev) for k, v in batch.items()}
+    fwd = maybe_compile(model, variant.compile)
+
+    def run(b: Mapping[str, Tensor]) -> Any:
+        with autocast_context(dev, variant.precision):
+            return fwd(b)
+
+    info: dict[str, Any] = asdict(variant)
+    info["cuda_graph"] = bool(variant.cuda_graph and dev.type == "cuda")
+    if variant.cuda_graph and dev.type != "cuda":
+        info["note"] = "CUDA graphs need a CUDA device: eager"
+    if info["cuda_graph"]:
+        fn: Callable[[Mapping[str, Tensor]], Any] = _cuda_graph_fn(run, batch, dev)
+    else:
+        fn = run
+    info["compiled"] = bool(variant.compile and getattr(fwd, "compiled", False))
+    return fn, info, batch
+
+
+def benchmark_variants(model: nn.Module, batch: Mapping[str, Tensor], device: torch.device | str,
+                       variants: list[Variant], warmup: int = 10, runs: int = 50) -> list[dict[str, Any]]:
+    """Time every variant at batch 1 on ``device`` (:func:`measure_fps`) and compare its outputs
+    with float32 eager (``max_abs_diff``); adds ``speedup`` = fp32-eager latency / latency.
+    A variant that fails (e.g. bf16 on a GPU without it) is reported with ``error``."""
+    dev = torch.device(device)
+    model = model.to(dev).eval()
+    with torch.inference_mode():
+        ref = {k: v.float().clone() for k, v in _outputs(model({k: v.to(dev) for k, v in batch.items()})).items()}
+    results: list[dict[str, Any]] = []
+    base_ms: float | None = None
+    for v in variants:
+        try:
+            fn, info, vb = build_inference(model, batch, dev, v)
+            with torch.inference_mode():
+                out = fn(vb)
+                synchronize(dev)
+                info["max_abs_diff"] = max_abs_diff(out, ref)
+            info.update(measure_fps(fn, vb, dev, warmup, runs))
+        except Exception as err:  # noqa: BLE001 - one variant's failure is a reported result
+            log.warning("variant %s failed: %s", v.name, err)
+            info = {**asdict(v), "error": f"{type(err).__name__}: {err}", "device": device_name(dev)}
+        if v.name == "fp32" and "latency_ms" in info:
+            base_ms = info["latency_ms"]
+        results.append(info)
+    model.to(memory_format=torch.contiguous_format)
+    for r in results:
+        if base_ms is not None and "latency_ms" in r:
+            r["speedup"] = base_ms / r["latency_ms"]
+    return results
