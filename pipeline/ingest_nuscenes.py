@@ -1,14 +1,13 @@
 """Stage ingest_nuscenes: a nuScenes-lidarseg dataroot (real, or the simulated export) ->
 data/cache/nuscenes/ (paper section IV-B, SPEC 3.2).
 
-Thin wrapper around :func:`compact_perception.nuscenes.ingest.ingest_from_params`. Missing
-input (dataroot, lidarseg folder, sweeps, images, label files) stops with a message naming it
-before anything is written (exit status 1).
+Thin wrapper around :func:`compact_perception.nuscenes.ingest.ingest_from_params`. Missing or
+corrupt input (dataroot, lidarseg folder, sweeps, images, label files; a truncated sweep or label
+.bin) stops with a one-line message naming it before anything is written (exit status 1).
 """
 from __future__ import annotations
 
 import argparse
-import logging
 import sys
 
 from ._common import start
@@ -26,8 +25,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         ingest_from_params(params, args.out, sim_root=args.sim_root)
     except NuScenesInputError as err:
-        logging.getLogger("ingest_nuscenes").error("%s", err)
-        return 1
+        sys.exit(f"error: {err}")
     return 0
 
 

@@ -1,7 +1,9 @@
 """Stage nuscenes_sim: the simulated world -> data/raw/nuscenes_sim/ (a nuScenes-format dataroot).
 
-Only does work when ``datasets.nuscenes.dataroot`` is null (SPEC 3.2); with a real dataroot it
-logs that and exits 0 without writing. Thin wrapper around
+Only simulates when ``datasets.nuscenes.dataroot`` is null (SPEC 3.2); with a real dataroot it
+writes only a manifest pointing at it (its DVC output), and a dataroot that is not there (no
+folder, no ``<version>`` table folder) is a one-line error naming the key and the path, exit
+status 1, nothing written. Thin wrapper around
 :func:`compact_perception.nuscenes.export.export_nuscenes_sim`.
 """
 from __future__ import annotations
@@ -13,6 +15,7 @@ import sys
 from ._common import start
 
 from compact_perception import io
+from compact_perception.nuscenes import dataroot_problem
 from compact_perception.nuscenes.export import export_nuscenes_sim
 
 
@@ -25,6 +28,9 @@ def main(argv: list[str] | None = None) -> int:
     log = logging.getLogger("nuscenes_sim")
     ns = params.datasets.nuscenes
     if ns.dataroot:  # real data: record what ingest_nuscenes will read instead of simulating
+        problem = dataroot_problem(ns.dataroot, ns.version)
+        if problem:
+            sys.exit(f"error: {args.params}: datasets.nuscenes.dataroot: {problem}")
         log.info("datasets.nuscenes.dataroot is set (%s): no simulated set written", ns.dataroot)
         with io.atomic_dir(args.out) as tmp:
             io.write_json(tmp / "manifest.json", {"source": "nuScenes-lidarseg", "dataroot": ns.dataroot,

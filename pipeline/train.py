@@ -6,10 +6,12 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from compact_perception.config import DATASET_IDS, MODEL_IDS
-from compact_perception.train import train_run
+from compact_perception.cache import CacheError
+from compact_perception.train import RunError, train_run
 
 from ._common import start
 
@@ -25,11 +27,14 @@ def main(argv: list[str] | None = None) -> None:
     params = start(args.params)
     if args.model not in params.train.models:
         raise SystemExit(f"error: params.yaml has no train.models.{args.model} recipe")
-    train_run(
-        params, args.dataset, args.model,
-        args.cache or Path("data/cache") / args.dataset,
-        args.out or Path("runs") / args.dataset / args.model,
-    )
+    try:
+        train_run(
+            params, args.dataset, args.model,
+            args.cache or Path("data/cache") / args.dataset,
+            args.out or Path("runs") / args.dataset / args.model,
+        )
+    except (RunError, CacheError) as err:
+        sys.exit(f"error: {err}")
 
 
 if __name__ == "__main__":

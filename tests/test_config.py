@@ -1,8 +1,13 @@
 """params.yaml schema: the committed file is valid; bad input names the key."""
 from __future__ import annotations
 
-import pytest
+import copy
+import typing
 
+import pytest
+from pydantic import BaseModel
+
+from compact_perception import config
 from compact_perception.config import ParamsError, load_params, parse_params
 
 
@@ -58,3 +63,119 @@ def test_unknown_model_id(params_dict):
 def test_missing_file(tmp_path):
     with pytest.raises(ParamsError, match="file not found"):
         load_params(tmp_path / "nope.yaml")
+
+
+# ----------------------------------------------------------------------------- strict types, counts
+@pytest.mark.parametrize(
+    "path, value, fragment",
+    [
+        (("train", "batch_size"), True, r"train\.batch_size: .*integer.*True"),
+        (("train", "batch_size"), "6", r"train\.batch_size: .*integer.*'6'"),
+        (("train", "batch_size"), 6.0, r"train\.batch_size: .*integer"),
+        (("train", "batch_size"), 0, r"train\.batch_size: .*greater than or equal to 1"),
+        (("train", "channels_last"), "no", r"train\.channels_last: .*boolean"),
+        (("train", "plateau_factor"), True, r"train\.plateau_factor: .*number"),
+        (("seed",), "2022", r"seed: .*integer"),
+        (("train", "max_epochs", "default"), 0, r"train\.max_epochs: .*default must be at least 1"),
+        (("train", "max_epochs", "paper"), -3, r"train\.max_epochs: .*paper must be at least 1"),
+        (("train", "models", "gradnorm_segnet", "max_epochs", "default"), 0,
+         r"train\.models\.gradnorm_segnet\.max_epochs: .*at least 1"),
+        (("datasets", "nuscenes", "sim_scenes", "default"), 2, r"datasets\.nuscenes\.sim_scenes: .*at least 3"),
+        (("datasets", "nuscenes", "split_seed"), -1, r"datasets\.nuscenes\.split_seed"),
+        (("world", "conditions", "times"), [], r"world\.conditions\.times"),
+        (("evaluate", "save_predictions"), False, r"evaluate\.save_predictions: .*integer"),
+    ],
+)
+def test_strict_types_and_counts(params_dict, path, value, fragment):
+    node = params_dict
+    for key in path[:-1]:
+        node = node[key]
+    node[path[-1]] = value
+    with pytest.raises(ParamsError, match=fragment):
+        parse_params(params_dict)
+
+
+def test_yaml_int_passes_for_a_float(params_dict):
+    params_dict["train"]["plateau_factor"] = 0.5
+    params_dict["world"]["camera"]["fov_deg"] = 90  # YAML int where a float is expected
+    assert parse_params(params_dict).world.camera.fov_deg == 90.0
+
+
+def test_exponent_without_dot_gets_a_hint(params_dict):
+    params_dict["train"]["models"]["polarnet"]["lr"] = "1e-3"  # what YAML 1.1 makes of `lr: 1e-3`
+    with pytest.raises(ParamsError, match=r"train\.models\.polarnet\.lr: .*write e\.g\. 1\.0e-4"):
+        parse_params(params_dict)
+
+
+def test_momentum_only_with_sgd(params_dict):
+    d = copy.deepcopy(params_dict)
+    del d["train"]["models"]["compact_1l"]["momentum"]
+    with pytest.raises(ParamsError, match=r"train\.models\.compact_1l: .*momentum: required with optimizer 'sgd'"):
+        parse_params(d)
+    params_dict["train"]["models"]["polarnet"]["momentum"] = 0.9
+    with pytest.raises(ParamsError, match=r"train\.models\.polarnet: .*momentum: not used by optimizer 'adam'"):
+        parse_params(params_dict)
+
+
+# ----------------------------------------------------------------------------- no hidden defaults
+# The only fields with a default: settings that cannot change a result, and optional
+# sections/overrides whose absence means "not used" (no value hides behind them).
+NO_RESULT_EFFECT = {"WorldParams.workers", "PreprocessParams.workers", "TrainParams.num_workers", "TrainParams.device"}
+ABSENT_MEANS_UNUSED = {"ModelRecipe.momentum", "ModelRecipe.betas", "ModelRecipe.eps", "ModelRecipe.max_epochs",
+                       "ModelRecipe.mgn", "ModelRecipe.gradnorm"}
+
+
+def _models(cls, seen=None):
+    seen = {} if seen is None else seen
+    if isinstance(cls, type) and issubclass(cls, BaseModel) and cls.__name__ not in seen:
+        seen[cls.__name__] = cls
+        for f in cls.model_fields.values():
+            for arg in (f.annotation, *typing.get_args(f.annotation)):
+                for inner in (arg, *typing.get_args(arg)):
+                    _models(inner, seen)
+    return seen
+
+
+def test_every_results_changing_field_is_required():
+    defaulted = {f"{name.split('[')[0]}.{fname}" for name, cls in _models(config.Params).items()
+                 for fname, f in cls.model_fields.items() if not f.is_required()}
+    assert defaulted == NO_RESULT_EFFECT | ABSENT_MEANS_UNUSED
+
+
+def test_committed_params_spell_out_the_defaulted_settings(params_dict):
+    assert params_dict["world"]["workers"] and params_dict["preprocess"]["workers"]
+    assert "num_workers" in params_dict["train"] and "device" in params_dict["train"]
+
+
+def test_missing_required_key_is_named(params_dict):
+    del params_dict["train"]["models"]["compact_15l"]["weight_decay"]
+    del params_dict["datasets"]["B"]["seed_offset"]
+    with pytest.raises(ParamsError) as exc:
+        parse_params(params_dict)
+    msg = str(exc.value)
+    assert "train.models.compact_15l.weight_decay: Field required" in msg
+    assert "datasets.B.seed_offset: Field required" in msg
+
+
+def test_lr_floor_not_above_lr(params_dict):
+    d = copy.deepcopy(params_dict)
+    d["train"]["models"]["polarnet"]["lr_min"] = 0.01
+    with pytest.raises(ParamsError, match=r"train\.models\.polarnet: .*lr_min \(0\.01\) must not exceed lr"):
+        parse_params(d)
+    params_dict["train"]["models"]["compact_15l_mgn"]["mgn"]["lr_min"] = 0.5
+    with pytest.raises(ParamsError, match=r"train\.models\.compact_15l_mgn\.mgn: .*lr_min"):
+        parse_params(params_dict)
+
+
+def test_optimizer_settings_belong_to_their_optimizer(params_dict):
+    """Adam's betas/eps are required with adam and refused with sgd (no hidden torch defaults)."""
+    from compact_perception.config import ParamsError, parse_params
+
+    adam = params_dict["train"]["models"]["polarnet"]
+    del adam["betas"]
+    with pytest.raises(ParamsError, match="betas and eps: required"):
+        parse_params(params_dict)
+    adam["betas"] = [0.9, 0.999]
+    params_dict["train"]["models"]["compact_1l"]["eps"] = 1e-8
+    with pytest.raises(ParamsError, match="not used by optimizer 'sgd'"):
+        parse_params(params_dict)

@@ -213,6 +213,14 @@ def test_ingest_writes_cache_and_bev(tmp_path, sim_root, params, nusc):
     assert ls[:, car_i, car_j].tolist() == [NUSCENES_INDEX["vehicle.car"]] * 6
 
 
+def test_ingest_workers_give_the_same_bytes(tmp_path, sim_root, params):
+    """Parallel ingestion (forked workers) writes exactly what one process writes."""
+    for workers in (1, 2):
+        ingest_nuscenes(sim_root, params.datasets.nuscenes.version, tmp_path / f"w{workers}", resolution=S_EXPORT,
+                        preprocess=params.preprocess, split_seed=0, workers=workers)
+    assert _tree_hash(tmp_path / "w1") == _tree_hash(tmp_path / "w2")
+
+
 # ----------------------------------------------------------------------------- split
 def test_scene_split():
     names = [f"scene-{i:04d}" for i in range(1, 851)]
@@ -302,6 +310,7 @@ def test_sim_stage_with_real_dataroot_records_it(tmp_path, params_dict, root):
     import yaml
 
     params_dict["datasets"]["nuscenes"]["dataroot"] = str(tmp_path / "nuscenes")
+    (tmp_path / "nuscenes" / "v1.0-trainval").mkdir(parents=True)  # checked: a missing dataroot is an error
     (tmp_path / "params.yaml").write_text(yaml.safe_dump(params_dict))
     out = tmp_path / "raw" / "nuscenes_sim"
     r = subprocess.run([sys.executable, "-m", "pipeline.nuscenes_sim", "--params", str(tmp_path / "params.yaml"),

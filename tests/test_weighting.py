@@ -8,7 +8,6 @@ import pytest
 import torch
 from torch import nn
 
-from compact_perception.config import GradNormParams, MgnParams, ModelRecipe
 from compact_perception.weighting import (
     WEIGHTINGS,
     GradNormWeighting,
@@ -17,6 +16,8 @@ from compact_perception.weighting import (
     StaticWeighting,
     build_weighting,
 )
+
+from repo_params import section
 
 D = torch.float64
 TASKS = ("de", "ss", "ls", "bevp")
@@ -253,10 +254,10 @@ def test_registry_and_factory() -> None:
     assert WEIGHTINGS.keys() == ["gradnorm", "mgn", "none", "static"]
     model = Tiny()
     kinds = {
-        "static": (ModelRecipe(optimizer="sgd", lr=0.1), StaticWeighting),
-        "none": (ModelRecipe(optimizer="sgd", lr=0.1, weighting="none"), NoWeighting),
-        "mgn": (ModelRecipe(optimizer="sgd", lr=0.1, weighting="mgn", mgn=MgnParams()), MGNWeighting),
-        "gradnorm": (ModelRecipe(optimizer="adam", lr=1e-3, weighting="gradnorm", gradnorm=GradNormParams()), GradNormWeighting),
+        "static": (section("train.models.compact_1l", weighting="static"), StaticWeighting),
+        "none": (section("train.models.compact_1l", weighting="none"), NoWeighting),
+        "mgn": (section("train.models.compact_15l_mgn"), MGNWeighting),
+        "gradnorm": (section("train.models.gradnorm_segnet", lr=1e-3), GradNormWeighting),
     }
     for key, (recipe, cls) in kinds.items():
         w = build_weighting(recipe, TASKS, model, plateau_patience=3)

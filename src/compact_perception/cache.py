@@ -25,7 +25,7 @@ import os
 import struct
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Mapping
+from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 from tqdm import tqdm
@@ -186,8 +186,55 @@ class CacheInfo:
             raise CacheError(f"{self.path}: no split {split!r}; has {sorted(self.splits)}") from None
 
 
+_RERUN = "rerun the stage that writes the cache (preprocess or ingest_nuscenes)"
+
+
+def _read_json(path: Path, what: str) -> Any:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, ValueError) as err:
+        raise CacheError(f"{path}: unreadable {what} ({type(err).__name__}: {err}); {_RERUN}") from None
+
+
+def check_array_file(path: Path, n_rows: int, dtype: Any, shape: Sequence[int]) -> None:
+    """Raise :class:`CacheError` unless ``path`` is a complete .npy of ``n_rows`` frames of ``dtype``
+    ``shape``: its header is readable, says exactly that, and the file size is the header plus
+    the data (a truncated or over-long file is caught here, before it is memory-mapped)."""
+    want_dtype, want_shape = np.dtype(dtype), (int(n_rows),) + tuple(int(n) for n in shape)
+    expected = f"{want_shape} {want_dtype} (one row per frame id)"
+    try:
+        size = path.stat().st_size
+        with open(path, "rb") as fh:
+            version = np.lib.format.read_magic(fh)
+            if version == (1, 0):
+                got_shape, fortran, got_dtype = np.lib.format.read_array_header_1_0(fh)
+            elif version == (2, 0):
+                got_shape, fortran, got_dtype = np.lib.format.read_array_header_2_0(fh)
+            else:
+                raise ValueError(f"unsupported .npy format version {version}")
+            offset = fh.tell()
+    except FileNotFoundError:
+        raise CacheError(f"{path}: file not found; expected a cache array of {expected}; {_RERUN}") from None
+    except (OSError, ValueError, SyntaxError) as err:
+        raise CacheError(f"{path}: not a readable .npy file ({err}); expected a cache array of {expected}; "
+                         f"{_RERUN}") from None
+    if tuple(got_shape) != want_shape or np.dtype(got_dtype) != want_dtype or fortran:
+        raise CacheError(f"{path}: header says {tuple(got_shape)} {np.dtype(got_dtype)}"
+                         f"{' (Fortran order)' if fortran else ''}, expected {expected}; {_RERUN}")
+    need = offset + int(np.prod(want_shape, dtype=np.int64)) * want_dtype.itemsize
+    if size != need:
+        state = "truncated" if size < need else "longer than its header says"
+        raise CacheError(f"{path}: {state}: {size} bytes, expected {need} ({offset}-byte header + "
+                         f"{expected}); {_RERUN}")
+
+
 def read_split(cache_dir: str | os.PathLike, split: str, meta: Mapping[str, Any] | None = None) -> CacheSplit:
-    """Open one split's arrays with ``mmap_mode="r"``; checks every array has one row per frame id."""
+    """Open one split's arrays with ``mmap_mode="r"``.
+
+    Before mapping, every array file is checked against meta.json and frame_ids.json
+    (:func:`check_array_file`: header, dtype, shape, one row per frame id, file size), so a
+    truncated or corrupt file raises :class:`CacheError` naming it instead of failing later.
+    """
     cache_dir = Path(cache_dir)
     if meta is None:
         meta = read_meta(cache_dir)
@@ -195,16 +242,23 @@ def read_split(cache_dir: str | os.PathLike, split: str, meta: Mapping[str, Any]
     ids_path = sdir / "frame_ids.json"
     if split not in meta.get("counts", {}) or not ids_path.is_file():
         raise CacheError(f"{cache_dir}: no split {split!r} (has {sorted(meta.get('counts', {}))})")
-    ids = json.loads(ids_path.read_text())
+    ids = _read_json(ids_path, "frame id list")
+    if not isinstance(ids, list) or not all(isinstance(i, str) for i in ids):
+        raise CacheError(f"{ids_path}: expected a JSON list of frame id strings; {_RERUN}")
+    keys = meta.get("keys", {}).get(split) if isinstance(meta.get("keys"), dict) else None
+    if not isinstance(keys, dict) or not keys:
+        raise CacheError(f"{cache_dir / 'meta.json'}: no array list (keys.{split}); {_RERUN}")
     arrays: dict[str, np.ndarray] = {}
-    for key in meta["keys"][split]:
+    for key, spec in keys.items():
         path = sdir / f"{key}.npy"
+        try:
+            check_array_file(path, len(ids), spec["dtype"], spec["shape"])
+        except (KeyError, TypeError):
+            raise CacheError(f"{cache_dir / 'meta.json'}: keys.{split}.{key} needs dtype and shape; {_RERUN}") from None
         try:
             arr = np.load(path, mmap_mode="r")
         except (OSError, ValueError) as err:
             raise CacheError(f"{path}: cannot open cache array: {err}") from None
-        if arr.shape[0] != len(ids):
-            raise CacheError(f"{path}: {arr.shape[0]} rows but {len(ids)} frame ids")
         arrays[key] = arr
     return CacheSplit(split, ids, arrays)
 
@@ -215,7 +269,10 @@ def read_meta(cache_dir: str | os.PathLike) -> dict[str, Any]:
     path = cache_dir / "meta.json"
     if not path.is_file():
         raise CacheError(f"{cache_dir}: not a cache (no meta.json); run the preprocess stage")
-    return json.loads(path.read_text())
+    meta = _read_json(path, "cache meta")
+    if not isinstance(meta, dict):
+        raise CacheError(f"{path}: expected a JSON object; {_RERUN}")
+    return meta
 
 
 def read_cache(cache_dir: str | os.PathLike) -> CacheInfo:

@@ -1,6 +1,13 @@
 """Typed schema of params.yaml (SPEC 9): unknown keys and wrong types are errors
 whose message names the offending key.
 
+Types are strict: a bool or a string never passes as a number (``batch_size: true`` is an
+error, not 1), a YAML int passes where a float is expected. Every setting that can change a
+result is required, so params.yaml spells out every value a result depends on and no default
+hides in code; only settings that cannot change a result (worker counts, the device
+preference) have defaults. An optional section or override (``mgn``, ``gradnorm``, a model's
+``max_epochs``) is absent when not used.
+
 ``scale`` is the one switch between the default scale (a 2-core CPU, about 30 min for
 the whole pipeline) and the paper's scale: every value that differs between the two is
 written as ``{default: ..., paper: ...}`` (a :class:`Scaled`) and resolved with
@@ -23,9 +30,9 @@ ScaleName = Literal["default", "paper"]
 
 
 class Strict(BaseModel):
-    """Base for every section: unknown keys are rejected."""
+    """Base for every section: unknown keys are rejected, types are strict (no bool/str -> int)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
 
 
 class Scaled(Strict, Generic[T]):
@@ -38,25 +45,34 @@ class Scaled(Strict, Generic[T]):
         return getattr(self, scale)
 
 
+def _scaled_at_least(v: Optional[Scaled[int]], lo: int) -> Optional[Scaled[int]]:
+    """Both scales of an integer :class:`Scaled` count are ``>= lo``."""
+    if v is not None:
+        for name in ("default", "paper"):
+            if getattr(v, name) < lo:
+                raise ValueError(f"{name} must be at least {lo}, got {getattr(v, name)}")
+    return v
+
+
 # ----------------------------------------------------------------------------- world
 class CameraParams(Strict):
     """RGB/DVS/semantic/depth cameras (paper section IV-A, Fig. 4)."""
 
-    fov_deg: float = Field(90.0, gt=10.0, lt=170.0, description="horizontal and vertical FOV")
-    pitch_deg: float = Field(20.0, ge=-45.0, le=45.0, description="upward rotation")
-    height_m: float = Field(1.7, gt=0.2, le=4.0)
-    mount_offset_m: float = Field(1.0, ge=0.0, le=3.0, description="distance from the ego centre")
+    fov_deg: float = Field(gt=10.0, lt=170.0, description="horizontal and vertical FOV (paper 90)")
+    pitch_deg: float = Field(ge=-45.0, le=45.0, description="upward rotation (paper 20)")
+    height_m: float = Field(gt=0.2, le=4.0)
+    mount_offset_m: float = Field(ge=0.0, le=3.0, description="distance from the ego centre")
 
 
 class LidarParams(Strict):
     """Roof LiDAR (paper section IV-A)."""
 
-    channels: int = Field(64, ge=4, le=256)
-    upper_fov_deg: float = Field(20.0, gt=-90.0, lt=90.0)
-    lower_fov_deg: float = Field(-30.0, gt=-90.0, lt=90.0)
-    range_m: float = Field(32.0, gt=1.0, le=200.0)
-    height_m: float = Field(2.0, gt=0.5, le=5.0)
-    horizontal_samples: int = Field(1024, ge=64, le=8192, description="rays per laser per revolution")
+    channels: int = Field(ge=4, le=256)
+    upper_fov_deg: float = Field(gt=-90.0, lt=90.0)
+    lower_fov_deg: float = Field(gt=-90.0, lt=90.0)
+    range_m: float = Field(gt=1.0, le=200.0)
+    height_m: float = Field(gt=0.5, le=5.0)
+    horizontal_samples: int = Field(ge=64, le=8192, description="rays per laser per revolution")
 
     @model_validator(mode="after")
     def _fov_order(self) -> "LidarParams":
@@ -66,26 +82,26 @@ class LidarParams(Strict):
 
 
 class DvsParams(Strict):
-    contrast_threshold: float = Field(0.3, gt=0.0, le=5.0, description="log-intensity change per event (CARLA 0.3)")
-    step_s: float = Field(0.1, gt=0.0, le=2.0, description="simulated time between the two compared steps")
+    contrast_threshold: float = Field(gt=0.0, le=5.0, description="log-intensity change per event (CARLA 0.3)")
+    step_s: float = Field(gt=0.0, le=2.0, description="simulated time between the two compared steps")
 
 
 class ConditionParams(Strict):
     """Per-frame time of day and weather draws (SPEC 3.1)."""
 
-    times: list[Literal["morning", "noon", "evening", "night"]] = ["morning", "noon", "evening", "night"]
-    weathers: list[Literal["sunny", "cloudy", "rainy", "foggy"]] = ["sunny", "cloudy", "rainy", "foggy"]
-    combine_probability: float = Field(0.3, ge=0.0, le=1.0, description="chance a second weather is mixed in")
+    times: list[Literal["morning", "noon", "evening", "night"]] = Field(min_length=1)
+    weathers: list[Literal["sunny", "cloudy", "rainy", "foggy"]] = Field(min_length=1)
+    combine_probability: float = Field(ge=0.0, le=1.0, description="chance a second weather is mixed in")
 
 
 class WorldParams(Strict):
     resolution: Scaled[int]
-    camera: CameraParams = CameraParams()
-    lidar: LidarParams = LidarParams()
-    dvs: DvsParams = DvsParams()
-    conditions: ConditionParams = ConditionParams()
-    frames_per_episode: int = Field(20, ge=1, le=10000, description="consecutive frames of one drive (a 'scene')")
-    workers: int = Field(2, ge=1, le=256)
+    camera: CameraParams
+    lidar: LidarParams
+    dvs: DvsParams
+    conditions: ConditionParams
+    frames_per_episode: int = Field(ge=1, le=10000, description="consecutive frames of one drive (a 'scene')")
+    workers: int = Field(2, ge=1, le=256, description="generator processes: any count gives the same files")
 
     @field_validator("resolution")
     @classmethod
@@ -98,16 +114,34 @@ class WorldParams(Strict):
 
 
 # ----------------------------------------------------------------------------- datasets
+class AuthorsSplits(Strict):
+    """Split folders of the authors' release (``<authors_root>/<folder>/data_info.yml``, e.g. Tr1,
+    Va2, Te2); a folder's first two letters name its frame folder (Tr1 -> TrSet)."""
+
+    train: str
+    val: str
+    test: str
+
+    @field_validator("train", "val", "test")
+    @classmethod
+    def _folder(cls, v: str) -> str:
+        if v[:2] not in ("Tr", "Va", "Te") or "/" in v or "\\" in v or v in ("TrSet", "VaSet", "TeSet"):
+            raise ValueError(f"expected a split folder name starting with Tr, Va or Te (e.g. Tr1, Va2, Te12345), got {v!r}")
+        return v
+
+
 class SimDatasetParams(Strict):
     """A simulated dataset (A, B, C): town splits of paper Table I, ratio 3:1:1."""
 
-    source: Literal["sim", "authors"] = "sim"
-    authors_root: Optional[str] = Field(None, description="root of the authors' released dataset (source: authors)")
+    source: Literal["sim", "authors"]
+    authors_root: Optional[str] = Field(description="root of the authors' released dataset (source: authors); null otherwise")
+    authors_splits: AuthorsSplits = Field(description="split folders used with source: authors (paper: "
+                                          "A Tr1/Va2/Te2, B Tr2/Va1/Te1, C Tr12345/Va12345/Te12345)")
     frames: Scaled[int]
     train_towns: list[str]
     eval_towns: list[str]
     split_by: Literal["town", "episode"]
-    seed_offset: int = Field(0, ge=0)
+    seed_offset: int = Field(ge=0, description="added to the top-level seed for this dataset's episodes")
 
     @field_validator("train_towns", "eval_towns")
     @classmethod
@@ -137,11 +171,16 @@ class SimDatasetParams(Strict):
 class NuScenesParams(Strict):
     """nuScenes-lidarseg (section IV-B). With no dataroot a simulated nuScenes-format set is written."""
 
-    dataroot: Optional[str] = None
-    version: str = "v1.0-trainval"
+    dataroot: Optional[str] = Field(description="a nuScenes-lidarseg dataroot; null = the simulated export")
+    version: str = Field(min_length=1)
     sim_scenes: Scaled[int]
-    sim_samples_per_scene: int = Field(8, ge=2, le=100)
-    split_seed: int = 0
+    sim_samples_per_scene: int = Field(ge=2, le=100)
+    split_seed: int = Field(ge=0)
+
+    @field_validator("sim_scenes")
+    @classmethod
+    def _scenes(cls, v: Scaled[int]) -> Scaled[int]:
+        return _scaled_at_least(v, 3)  # one scene per split at least
 
 
 class DatasetsParams(Strict):
@@ -155,12 +194,12 @@ class DatasetsParams(Strict):
 class PreprocessParams(Strict):
     """Section IV-C, eq. (1)-(5)."""
 
-    lidar_range_m: float = Field(32.0, gt=1.0)
-    z_min_m: float = -2.0
-    z_max_m: float = 11.0
-    height_multiplier: int = Field(13, ge=1, le=64, description="eq. (5): channels 0..multiplier")
-    fill_neighbours: bool = True
-    workers: int = Field(2, ge=1, le=256)
+    lidar_range_m: float = Field(gt=1.0)
+    z_min_m: float
+    z_max_m: float
+    height_multiplier: int = Field(ge=1, le=64, description="eq. (5): channels 0..multiplier")
+    fill_neighbours: bool
+    workers: int = Field(2, ge=1, le=256, description="preprocessing processes: any count gives the same cache")
 
     @model_validator(mode="after")
     def _z(self) -> "PreprocessParams":
@@ -173,32 +212,59 @@ class PreprocessParams(Strict):
 class MgnParams(Strict):
     """Section III-C, Algorithm 1."""
 
-    alpha: float = Field(1.5, ge=0.0)
-    lr: float = Field(0.1, gt=0.0)
-    lr_min: float = Field(1e-4, gt=0.0)
-    authors_mode: bool = Field(False, description="reproduce the authors' public code (SPEC 7)")
+    alpha: float = Field(ge=0.0)
+    lr: float = Field(gt=0.0)
+    lr_min: float = Field(gt=0.0)
+    authors_mode: bool = Field(description="reproduce the authors' public code (SPEC 7)")
+
+    @model_validator(mode="after")
+    def _lr_floor(self) -> "MgnParams":
+        if self.lr_min > self.lr:
+            raise ValueError(f"lr_min ({self.lr_min}) must not exceed lr ({self.lr})")
+        return self
 
 
 class GradNormParams(Strict):
     """Original per-step GradNorm (Chen et al., ICML 2018)."""
 
-    alpha: float = Field(1.5, ge=0.0)
-    lr: float = Field(0.025, gt=0.0)
+    alpha: float = Field(ge=0.0)
+    lr: float = Field(gt=0.0)
 
 
 class ModelRecipe(Strict):
     optimizer: Literal["sgd", "adam"]
     lr: float = Field(gt=0.0)
-    lr_min: float = Field(1e-5, gt=0.0)
-    momentum: float = Field(0.9, ge=0.0, lt=1.0)
-    weight_decay: float = Field(1e-4, ge=0.0)
-    weighting: Literal["static", "mgn", "gradnorm", "none"] = "static"
+    lr_min: float = Field(gt=0.0)
+    momentum: Optional[float] = Field(None, ge=0.0, lt=1.0, description="SGD momentum: required with sgd, "
+                                      "not allowed with adam (which has none)")
+    betas: Optional[list[float]] = Field(None, description="Adam's (beta1, beta2): required with adam, "
+                                         "not allowed with sgd")
+    eps: Optional[float] = Field(None, gt=0.0, description="Adam's epsilon: required with adam, not allowed with sgd")
+    weight_decay: float = Field(ge=0.0)
+    weighting: Literal["static", "mgn", "gradnorm", "none"]
     max_epochs: Optional[Scaled[int]] = Field(None, description="overrides train.max_epochs for this model")
     mgn: Optional[MgnParams] = None
     gradnorm: Optional[GradNormParams] = None
 
+    @field_validator("max_epochs")
+    @classmethod
+    def _epochs(cls, v: Optional[Scaled[int]]) -> Optional[Scaled[int]]:
+        return _scaled_at_least(v, 1)
+
     @model_validator(mode="after")
     def _weighting(self) -> "ModelRecipe":
+        if self.optimizer == "sgd" and self.momentum is None:
+            raise ValueError("momentum: required with optimizer 'sgd' (the paper's 0.9)")
+        if self.optimizer == "adam" and self.momentum is not None:
+            raise ValueError("momentum: not used by optimizer 'adam'; remove the key")
+        if self.optimizer == "adam" and (self.betas is None or self.eps is None):
+            raise ValueError("betas and eps: required with optimizer 'adam' (PyTorch's [0.9, 0.999] and 1.0e-8)")
+        if self.optimizer == "sgd" and (self.betas is not None or self.eps is not None):
+            raise ValueError("betas/eps: not used by optimizer 'sgd'; remove the keys")
+        if self.betas is not None and (len(self.betas) != 2 or not all(0.0 <= b < 1.0 for b in self.betas)):
+            raise ValueError(f"betas: expected two numbers in [0, 1), got {self.betas}")
+        if self.lr_min > self.lr:
+            raise ValueError(f"lr_min ({self.lr_min}) must not exceed lr ({self.lr})")
         if self.weighting == "mgn" and self.mgn is None:
             raise ValueError("weighting 'mgn' needs an 'mgn' section")
         if self.weighting == "gradnorm" and self.gradnorm is None:
@@ -209,15 +275,26 @@ class ModelRecipe(Strict):
 class TrainParams(Strict):
     """Section IV-D: batch 6, SGD, plateau halving, early stop, best checkpoint."""
 
-    batch_size: int = Field(6, ge=1)
+    batch_size: int = Field(ge=1)
     max_epochs: Scaled[int]
-    plateau_patience: int = Field(4, ge=1)
-    plateau_factor: float = Field(0.5, gt=0.0, lt=1.0)
-    early_stop_patience: int = Field(25, ge=1)
-    num_workers: int = Field(2, ge=0)
+    plateau_patience: int = Field(ge=1)
+    plateau_factor: float = Field(gt=0.0, lt=1.0)
+    early_stop_patience: int = Field(ge=1)
+    num_workers: int = Field(2, ge=0, description="loader processes: any count gives the same result")
+    num_threads: int = Field(ge=1, le=256, description="torch intra-op threads: a threaded reduction's "
+                             "result depends on the count, so it is a tracked param (determinism.set_threads)")
     device: Literal["auto", "cpu", "cuda"] = "auto"
-    amp: bool = False
+    precision: Literal["fp32", "bf16", "fp16", "auto"] = Field(
+        description="fp32 (bit-reproducible), bf16/fp16 autocast, or auto: the fastest the hardware runs "
+                    "natively (precision.resolve_precision); anything but fp32 lifts the CPU kernel pins")
+    channels_last: bool = Field(description="NHWC memory format for the convolutions")
+    compile: bool = Field(description="torch.compile the forward (falls back to eager with one warning)")
     models: dict[str, ModelRecipe]
+
+    @field_validator("max_epochs")
+    @classmethod
+    def _epochs(cls, v: Scaled[int]) -> Scaled[int]:
+        return _scaled_at_least(v, 1)
 
     @field_validator("models")
     @classmethod
@@ -229,13 +306,13 @@ class TrainParams(Strict):
 
 
 class EvalParams(Strict):
-    figure_frame: int = Field(0, ge=0, description="test frame shown in the qualitative figures")
-    save_predictions: int = Field(2, ge=0, description="test frames whose predictions are saved")
+    figure_frame: int = Field(ge=0, description="test frame shown in the qualitative figures")
+    save_predictions: int = Field(ge=0, description="test frames whose predictions are saved")
 
 
 class BenchmarkParams(Strict):
-    warmup: int = Field(10, ge=0)
-    runs: int = Field(50, ge=3)
+    warmup: int = Field(ge=0)
+    runs: int = Field(ge=3)
 
 
 class Params(Strict):
@@ -243,18 +320,31 @@ class Params(Strict):
     seed: int = Field(ge=0)
     world: WorldParams
     datasets: DatasetsParams
-    preprocess: PreprocessParams = PreprocessParams()
+    preprocess: PreprocessParams
     train: TrainParams
-    evaluate: EvalParams = EvalParams()
-    benchmark: BenchmarkParams = BenchmarkParams()
+    evaluate: EvalParams
+    benchmark: BenchmarkParams
 
 
 class ParamsError(ValueError):
     """params.yaml is invalid; the message names every offending key."""
 
 
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _one_line(text: str) -> str:
+    return " ".join(str(text).split())
+
+
 def _format(err: ValidationError, source: str) -> str:
-    lines = [f"{source}: invalid parameters"]
+    """One line: ``<file>: <key>: <problem> (got <value>)``, problems joined by ``; ``."""
+    problems = []
     for e in err.errors():
         key = ".".join(str(p) for p in e["loc"]) or "<root>"
         msg = e["msg"]
@@ -262,12 +352,15 @@ def _format(err: ValidationError, source: str) -> str:
             msg = "unknown key (not in the schema)"
         got = e.get("input")
         got_s = "" if e["type"] in ("extra_forbidden", "missing") or isinstance(got, dict) else f" (got {got!r})"
-        lines.append(f"  {key}: {msg}{got_s}")
-    return "\n".join(lines)
+        if e["type"] == "float_type" and isinstance(got, str) and _is_number(got):
+            got_s += " (YAML reads an exponent without a dot as text: write e.g. 1.0e-4)"
+        problems.append(_one_line(f"{key}: {msg}{got_s}"))
+    head = f"{source}: " if len(problems) == 1 else f"{source}: {len(problems)} invalid parameters: "
+    return head + "; ".join(problems)
 
 
 def parse_params(data: dict, source: str = "params.yaml") -> Params:
-    """Validate a params mapping; raises :class:`ParamsError` naming each bad key."""
+    """Validate a params mapping; raises :class:`ParamsError` whose one-line message names each bad key."""
     if not isinstance(data, dict):
         raise ParamsError(f"{source}: expected a mapping at the top level")
     try:
@@ -285,5 +378,5 @@ def load_params(path: str | Path = "params.yaml") -> Params:
         try:
             data = yaml.safe_load(fh)
         except yaml.YAMLError as err:
-            raise ParamsError(f"{path}: not valid YAML: {err}") from None
+            raise ParamsError(f"{path}: not valid YAML: {_one_line(err)}") from None
     return parse_params(data, str(path))

@@ -4,7 +4,9 @@ One run = one (dataset, model) pair. Per epoch it logs every task loss and metri
 and val), the learning rates and the loss weights through dvclive (``dvcyaml=False``),
 keeps the best-on-validation checkpoint, halves the lr on a validation-TM plateau, stops
 early, and saves a resumable checkpoint after every finished epoch. A killed run started
-again with the same configuration continues from its last finished epoch.
+again with the same code, params and data continues from its last finished epoch and ends
+with the same bytes as an uninterrupted run; any other change starts it afresh (the
+checkpoint's digest covers the source code, every ``train`` param of the run and the data).
 
 Outputs (``out_dir``, a persistent DVC output):
 
@@ -22,7 +24,6 @@ import math
 import random
 import time
 import zlib
-from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -33,18 +34,22 @@ from tqdm.auto import tqdm
 
 from . import distributed as ddp
 from . import io
-from .config import ModelRecipe, Params
+from .config import Params
+from .determinism import release_torch_pins, set_threads
 from .data import make_loader, set_epoch, to_device
-from .metrics import compute_metrics
+from .metrics import compute_metrics, scores_from_means, total_metric_partial
 from .models import build_model
+from .precision import (autocast_context, batch_to_channels_last, float_outputs, make_grad_scaler, maybe_compile,
+                        resolve_precision, to_channels_last)
+from .provenance import source_fingerprint
 from .schedule import EarlyStop, Plateau
 from .weighting import build_weighting
 
 log = logging.getLogger(__name__)
 
-#: Metric keys that enter the total metric TM (eq. 6); lower-is-better terms.
-IOU_KEYS = ("iou_ss", "iou_ls", "iou_bevp")
 
+class RunError(RuntimeError):
+    """A run cannot start or cannot save (bad input, a full disk); the message names the file or key."""
 
 def selection_score(metrics: dict[str, float]) -> float:
     """Validation score used for the schedule, early stopping and the best checkpoint.
@@ -52,11 +57,13 @@ def selection_score(metrics: dict[str, float]) -> float:
     It is the total metric TM (eq. 6) over the tasks the model performs: equal to TM for
     the compact model, and to the model's own share of TM for a baseline.
     """
-    score = metrics.get("mae_de", 0.0)
-    for key in IOU_KEYS:
-        if key in metrics:
-            score += 1.0 - metrics[key]
-    return float(score)
+    return total_metric_partial(metrics)
+
+
+def _split_scores(means: dict[str, float]) -> dict[str, float]:
+    """A split's mean scores with TM and MV recomputed from the four means (eq. 6-7, as the
+    paper's Table II defines MV; a mean of per-batch MV would not be it)."""
+    return {**means, **scores_from_means(means)}
 
 
 def resolve_device(pref: str) -> torch.device:
@@ -89,35 +96,30 @@ def cache_fingerprint(cache_dir: Path) -> str:
     return h.hexdigest()
 
 
-@dataclass
-class RunConfig:
-    """Everything that decides a run's result (its hash gates resuming)."""
+def run_digest(params: Params, dataset_id: str, model_id: str, seed: int, cache_hash: str,
+               world_size: int) -> str:
+    """Digest of everything that decides a run's result; it gates resuming and skipping.
 
-    dataset_id: str
-    model_id: str
-    recipe: ModelRecipe
-    batch_size: int
-    max_epochs: int
-    plateau_patience: int
-    plateau_factor: float
-    early_stop_patience: int
-    seed: int
-    cache_hash: str
-    world_size: int
-
-    def digest(self) -> str:
-        blob = json.dumps(
-            {k: (v.model_dump() if hasattr(v, "model_dump") else v) for k, v in self.__dict__.items()},
-            sort_keys=True,
-        )
-        return hashlib.sha256(blob.encode()).hexdigest()[:16]
+    It covers the source code (:func:`~compact_perception.provenance.source_fingerprint`),
+    the torch version, ``scale``, the run's seed, every ``train`` param except the other
+    models' recipes and the settings that cannot change a result (``num_workers``,
+    ``device``), the training and validation data, and the number of processes.
+    """
+    train = params.train.model_dump(exclude={"models", "num_workers", "device"})
+    blob = json.dumps({
+        "code": source_fingerprint(), "torch": torch.__version__, "scale": params.scale,
+        "dataset": dataset_id, "model": model_id, "seed": seed, "train": train,
+        "recipe": params.train.models[model_id].model_dump(), "data": cache_hash, "world_size": world_size,
+    }, sort_keys=True)
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
-def make_optimizer(recipe: ModelRecipe, parameters) -> torch.optim.Optimizer:
+def make_optimizer(recipe, parameters) -> torch.optim.Optimizer:
     """SGD with momentum (section IV-D) or Adam (the baselines' recipes)."""
     if recipe.optimizer == "sgd":
         return torch.optim.SGD(parameters, lr=recipe.lr, momentum=recipe.momentum, weight_decay=recipe.weight_decay)
-    return torch.optim.Adam(parameters, lr=recipe.lr, weight_decay=recipe.weight_decay)
+    return torch.optim.Adam(parameters, lr=recipe.lr, betas=tuple(recipe.betas), eps=recipe.eps,
+                            weight_decay=recipe.weight_decay)
 
 
 def _set_lr(opt: torch.optim.Optimizer, lr: float) -> None:
@@ -154,7 +156,51 @@ def evaluate_split(model: torch.nn.Module, loader, device: torch.device, spec: d
             values = {f"loss_{k}": v.item() for k, v in losses.items()}
             values.update({k: float(v) for k, v in compute_metrics(out, batch).items()})
             acc.add(values, n)
-    return acc.mean()
+    return _split_scores(acc.mean())
+
+
+def _replay_live(live, history: list[dict]) -> None:
+    """Write the logged epochs of ``history`` into a fresh dvclive folder (a resumed run's
+    logs then hold exactly the epochs its checkpoint holds, no more, no fewer)."""
+    for record in history:
+        _log_epoch(live, record)
+
+
+def _log_epoch(live, record: dict) -> None:
+    live.step = record["epoch"]
+    for k, v in record.items():
+        if k != "epoch":
+            live.log_metric(k, v)
+    live.next_step()
+
+
+def _export_best(model: torch.nn.Module, best_path: Path, onnx_path: Path, loader, device: torch.device,
+                 spec: dict) -> dict:
+    """Write the best checkpoint's network as ONNX (issue 15) and check it against PyTorch on one
+    validation frame; returns the largest absolute output difference."""
+    from .export import export_onnx
+
+    model.load_state_dict(torch.load(best_path, map_location=device, weights_only=False)["model"])
+    batch = to_device(next(iter(loader)), device, spec["num_seg_classes"])
+    one = {k: v[:1] for k, v in batch.items()}
+    report = export_onnx(model, one, onnx_path)
+    log.info("%s: ONNX max abs difference to PyTorch %.2e", onnx_path, report["max_abs_diff_all"])
+    return {"file": onnx_path.name, "max_abs_diff": float(report["max_abs_diff_all"])}
+
+
+def _check_inputs(params: Params, model_id: str, cache_dir: Path, per_rank_batch: int) -> dict:
+    """Everything a run needs, checked before anything is written; returns the cache meta."""
+    from .cache import CacheError, read_meta, read_split
+
+    meta = read_meta(cache_dir)
+    n_train = len(read_split(cache_dir, "train", meta).frame_ids)
+    n_val = len(read_split(cache_dir, "val", meta).frame_ids)
+    if n_train < per_rank_batch:
+        raise RunError(f"train.batch_size: {params.train.batch_size} needs at least {per_rank_batch} training "
+                       f"frames per process, {cache_dir / 'train'} has {n_train}")
+    if n_val == 0:
+        raise CacheError(f"{cache_dir / 'val'}: the validation split is empty")
+    return meta
 
 
 def train_run(
@@ -170,24 +216,54 @@ def train_run(
     """Train ``model_id`` on ``dataset_id`` from ``cache_dir`` into ``out_dir``.
 
     ``stop_after_epochs`` ends the process after that many epochs of this call without
-    writing the summary (it simulates an interruption, for tests).
+    writing the summary (it simulates an interruption, for tests). A failure to write a
+    checkpoint (a full disk) raises :class:`RunError`; a run that never saved an epoch then
+    leaves nothing behind.
     """
-    from dvclive import Live
-
     cache_dir, out_dir = Path(cache_dir), Path(out_dir)
     tp = params.train
     recipe = tp.models[model_id]
+    if tp.precision != "fp32":  # mixed precision wants the CPU's own (bf16/AMX) kernels: no pins, no bit promise
+        release_torch_pins()
     device = resolve_device(tp.device)
     dist_ = ddp.init_from_env(device.type)
     if dist_.enabled and device.type == "cuda":
         device = torch.device("cuda", dist_.local_rank)
+    per_rank_batch = max(1, tp.batch_size // dist_.world_size)
+    meta = _check_inputs(params, model_id, cache_dir, per_rank_batch)
+    set_threads(tp.num_threads)
     seed = run_seed(params, dataset_id, model_id)
+    digest = run_digest(params, dataset_id, model_id, seed, cache_fingerprint(cache_dir), dist_.world_size)
+    last_path, best_path, summary_path = out_dir / "last.pt", out_dir / "best.pt", out_dir / "summary.json"
+    try:
+        return _train(params, dataset_id, model_id, cache_dir, out_dir, meta, device, dist_, seed, digest,
+                      per_rank_batch, stop_after_epochs, dtype)
+    except InterruptedError:  # stop_after_epochs (an OSError subclass): not a write failure
+        raise
+    except OSError as err:  # a full disk, a read-only folder: say which file, leave no half-run
+        if dist_.is_main and not last_path.exists():
+            import shutil
+
+            shutil.rmtree(out_dir / "live", ignore_errors=True)
+            for stale in (best_path, summary_path):
+                stale.unlink(missing_ok=True)
+        where = err.filename or out_dir
+        raise RunError(f"{where}: could not write the run ({err.strerror or err})") from None
+
+
+def _train(params: Params, dataset_id: str, model_id: str, cache_dir: Path, out_dir: Path, meta: dict,
+           device: torch.device, dist_, seed: int, digest: str, per_rank_batch: int,
+           stop_after_epochs: int | None, dtype: torch.dtype) -> dict:
+    from dvclive import Live
+
+    tp = params.train
+    recipe = tp.models[model_id]
     seed_everything(seed)
     torch.use_deterministic_algorithms(True, warn_only=True)
-
-    meta = json.loads((cache_dir / "meta.json").read_text())
     spec = {"num_seg_classes": len(meta["seg_classes"])}
     model = build_model(model_id, dataset_id).to(device=device, dtype=dtype)
+    if tp.channels_last:
+        model = to_channels_last(model)
     lidar_channels = getattr(model, "lidar_channels", 15)
     weighting = build_weighting(recipe, model.tasks, model, plateau_patience=tp.plateau_patience,
                                 plateau_factor=tp.plateau_factor)
@@ -195,15 +271,9 @@ def train_run(
     max_epochs = (recipe.max_epochs or tp.max_epochs).at(params.scale)
     plateau = Plateau(tp.plateau_patience, tp.plateau_factor, recipe.lr_min)
     stopper = EarlyStop(tp.early_stop_patience)
-    use_amp = tp.amp and device.type == "cuda"
-    scaler = torch.amp.GradScaler("cuda", enabled=use_amp)
-
-    cfg = RunConfig(
-        dataset_id, model_id, recipe, tp.batch_size, max_epochs, tp.plateau_patience, tp.plateau_factor,
-        tp.early_stop_patience, seed, cache_fingerprint(cache_dir), dist_.world_size,
-    )
-    digest = cfg.digest()
-    per_rank_batch = max(1, tp.batch_size // dist_.world_size)
+    prec = resolve_precision(tp.precision, device)
+    scaler = make_grad_scaler(device, prec)
+    fwd = maybe_compile(model, tp.compile)
 
     # ---------------------------------------------------------------- resume or start
     start_epoch, history, best_score, best_epoch, lr = 0, [], math.inf, -1, recipe.lr
@@ -211,21 +281,27 @@ def train_run(
     last_path, best_path, summary_path = out_dir / "last.pt", out_dir / "best.pt", out_dir / "summary.json"
     state = None
     if last_path.exists():
-        state = torch.load(last_path, map_location=device, weights_only=False)
-        if state.get("digest") != digest:
-            log.info("%s: existing checkpoint has another configuration; starting afresh", out_dir)
+        try:
+            state = torch.load(last_path, map_location=device, weights_only=False)
+        except Exception as err:  # a checkpoint cut short by a kill: start afresh
+            log.info("%s: unreadable checkpoint (%s); starting afresh", last_path, err)
             state = None
-    if state is None and dist_.is_main:
-        for stale in (last_path, best_path, summary_path):
-            stale.unlink(missing_ok=True)
+        if state is not None and state.get("digest") != digest:
+            log.info("%s: the checkpoint is of other code, params or data; starting afresh", out_dir)
+            state = None
+    if state is not None and state.get("finished") and summary_path.exists():
+        log.info("%s: already complete for this code, params and data", out_dir)
+        ddp.shutdown(dist_)
+        return json.loads(summary_path.read_text())
+    if dist_.is_main:
         import shutil
 
-        shutil.rmtree(out_dir / "live", ignore_errors=True)
+        if state is None:
+            for stale in (last_path, best_path, summary_path):
+                stale.unlink(missing_ok=True)
+        shutil.rmtree(out_dir / "live", ignore_errors=True)  # rebuilt from the checkpoint's history
     ddp.barrier(dist_)
     if state is not None:
-        if state.get("finished") and summary_path.exists():
-            log.info("%s: already complete for this configuration", out_dir)
-            return json.loads(summary_path.read_text())
         model.load_state_dict(state["model"])
         optimizer.load_state_dict(state["optimizer"])
         weighting.load_state_dict(state["weighting"])
@@ -235,9 +311,8 @@ def train_run(
         best_score, best_epoch, lr = state["best_score"], state["best_epoch"], state["lr"]
         untrained_score = state.get("untrained_score")
         torch.set_rng_state(state["torch_rng"])
-        log.info("%s: resuming after epoch %d", out_dir, state["epoch"])
+        log.info("%s: resuming after epoch %d", out_dir, state["epoch"] + 1)
 
-    live = Live(str(out_dir / "live"), dvcyaml=False, save_dvc_exp=False, resume=start_epoch > 0) if dist_.is_main else None
     val_loader = make_loader(cache_dir, "val", lidar_channels, per_rank_batch, shuffle=False, seed=seed,
                              num_workers=tp.num_workers, drop_last=False, distributed=dist_.enabled)
     if untrained_score is None:  # the reference that training must beat (Kaiming-initialised network)
@@ -247,13 +322,14 @@ def train_run(
     train_loader = make_loader(cache_dir, "train", lidar_channels, per_rank_batch, shuffle=True, seed=seed,
                                num_workers=tp.num_workers, drop_last=True, distributed=dist_.enabled)
     n_steps = len(train_loader)
-    if n_steps == 0:
-        raise ValueError(f"{cache_dir}/train: fewer frames than one batch of {per_rank_batch}")
+    live = None
+    if dist_.is_main:
+        live = Live(str(out_dir / "live"), dvcyaml=False, save_dvc_exp=False)
+        _replay_live(live, history)
     t_start = time.perf_counter()
     elapsed_before = state["elapsed_s"] if state is not None else 0.0
     stop = bool(state and state.get("stopped_early"))
     epochs_this_call = 0
-    epoch = start_epoch - 1
     for epoch in range(start_epoch, max_epochs):
         if stop:
             break
@@ -261,22 +337,25 @@ def train_run(
         set_epoch(train_loader, epoch, seed)
         model.train()
         acc = _Mean()
-        bar = tqdm(train_loader, desc=f"{dataset_id}/{model_id} epoch {epoch + 1}/{max_epochs}",
+        # the bar never touches the loader: a second iter() of a persistent-worker loader would
+        # draw another shuffling order, so the worker count would change the result
+        bar = tqdm(total=n_steps, desc=f"{dataset_id}/{model_id} epoch {epoch + 1}/{max_epochs}",
                    disable=not dist_.is_main, leave=False)
-        for step, batch in enumerate(bar):
+        for step, batch in enumerate(train_loader):
             batch = to_device(batch, device, spec["num_seg_classes"], dtype=dtype)
             optimizer.zero_grad(set_to_none=True)
-            with torch.autocast("cuda", dtype=torch.float16) if use_amp else nullcontext():
-                out = model(batch)
-                losses = model.compute_losses(out, batch)
-            losses = {k: v.float() if use_amp else v for k, v in losses.items()}
+            if tp.channels_last:
+                batch = batch_to_channels_last(batch)
+            with autocast_context(device, prec):  # the forward only: losses in float32 (BCE clamps)
+                out = float_outputs(fwd(batch))
+            losses = model.compute_losses(out, batch)
+            weighting.grad_scale = scaler.get_scale() if scaler.is_enabled() else 1.0
             weighting.before_backward(step, n_steps, losses, model)
             if dist_.enabled:  # each rank's update saw its own batch: agree on the mean weights
                 weighting.set_weights(ddp.average_tensor(weighting.w, dist_))
             total = weighting.total(losses)
             scaler.scale(total).backward()
-            if use_amp:
-                scaler.unscale_(optimizer)
+            scaler.unscale_(optimizer)
             ddp.average_gradients(list(model.parameters()), dist_)
             scaler.step(optimizer)
             scaler.update()
@@ -285,9 +364,12 @@ def train_run(
                 values["loss_total"] = total.item()
                 values.update({k: float(v) for k, v in compute_metrics(out, batch).items()})
             acc.add(values, next(iter(batch.values())).shape[0])
-            bar.set_postfix(loss=f"{values['loss_total']:.3f}")
-        train_m = ddp.average_scalars(acc.mean(), dist_, acc.n)
-        val_m = ddp.average_scalars(evaluate_split(model, val_loader, device, spec, dtype), dist_, len(val_loader))
+            bar.set_postfix(loss=f"{values['loss_total']:.3f}", refresh=False)
+            bar.update()
+        bar.close()
+        train_m = _split_scores(ddp.average_scalars(acc.mean(), dist_, acc.n))
+        val_m = _split_scores(
+            ddp.average_scalars(evaluate_split(model, val_loader, device, spec, dtype), dist_, len(val_loader)))
         score = selection_score(val_m)
         improved, lr = plateau.step(score, lr)
         weighting.on_epoch_end(improved)
@@ -300,12 +382,7 @@ def train_run(
         history.append(record)
         log.info("%s/%s epoch %d: val score %.4f%s", dataset_id, model_id, epoch + 1, score,
                  " (best)" if improved else "")
-        if dist_.is_main:
-            live.step = epoch
-            for k, v in record.items():
-                if k != "epoch":
-                    live.log_metric(k, v)
-            live.next_step()
+        if dist_.is_main:  # the checkpoint first: the logs never hold an epoch it lacks
             if improved:
                 with io.atomic_path(best_path) as tmp:
                     torch.save({"model": model.state_dict(), "epoch": epoch, "score": score}, tmp)
@@ -319,6 +396,7 @@ def train_run(
                     "elapsed_s": elapsed_before + time.perf_counter() - t_start, "finished": False,
                     "untrained_score": untrained_score,
                 }, tmp)
+            _log_epoch(live, record)
         ddp.barrier(dist_)
         epochs_this_call += 1
         if stop_after_epochs is not None and epochs_this_call >= stop_after_epochs and epoch + 1 < max_epochs:
@@ -336,6 +414,8 @@ def train_run(
         "final_weights": {k: v for k, v in (history[-1] if history else {}).items() if k.startswith("w_")},
         "digest": digest,
     }
+    if dist_.is_main and model_id.startswith("compact"):  # the deployable network, beside its checkpoint
+        summary["onnx"] = _export_best(model, best_path, out_dir / "model.onnx", val_loader, device, spec)
     if dist_.is_main:
         live.end()
         state = torch.load(last_path, map_location="cpu", weights_only=False)

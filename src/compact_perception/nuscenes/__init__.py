@@ -13,6 +13,9 @@ does not shadow the devkit's top-level ``nuscenes`` package (absolute imports ar
 """
 from __future__ import annotations
 
+from pathlib import Path
+from typing import Optional
+
 #: nuScenes camera channel of each of our views (geometry.VIEWS order f, l, ri, r).
 VIEW_CHANNELS: dict[str, str] = {
     "f": "CAM_FRONT",
@@ -21,5 +24,21 @@ VIEW_CHANNELS: dict[str, str] = {
     "r": "CAM_BACK",
 }
 LIDAR_CHANNEL = "LIDAR_TOP"
+#: bytes per point of a LIDAR_TOP sweep .bin (x, y, z, intensity, ring index as float32)
+SWEEP_RECORD_BYTES = 5 * 4
+#: bytes per point of a lidarseg label .bin (one uint8 class index)
+LABEL_RECORD_BYTES = 1
 
-__all__ = ["VIEW_CHANNELS", "LIDAR_CHANNEL"]
+
+def dataroot_problem(dataroot: str | Path, version: str) -> Optional[str]:
+    """What makes ``dataroot`` unusable as a nuScenes dataroot of ``version`` at a glance
+    (no folder, no table folder), or None; the full check is ``ingest.preflight``."""
+    root = Path(dataroot)
+    if not root.is_dir():
+        return f"nuScenes dataroot not found: {root} (expected a folder holding the {version} tables)"
+    if not (root / version).is_dir():
+        return f"nuScenes table folder not found: {root / version} (version {version!r})"
+    return None
+
+
+__all__ = ["VIEW_CHANNELS", "LIDAR_CHANNEL", "SWEEP_RECORD_BYTES", "LABEL_RECORD_BYTES", "dataroot_problem"]

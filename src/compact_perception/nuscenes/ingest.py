@@ -43,8 +43,9 @@ Inputs / ground truth (S = ``world.resolution`` at the scale, 128 at paper scale
       the nuScenes Renault Zoe) centred on the LiDAR.
 
 Bad input (missing dataroot, table folder, table, lidarseg.json or lidarseg folder, any sweep,
-label file or image of the selected samples) raises :class:`NuScenesInputError` naming what is
-missing BEFORE anything is written.
+label file or image of the selected samples; a sweep whose size is not a whole number of 5 x
+float32 points, a label file whose size is not one uint8 per point of its sweep) raises
+:class:`NuScenesInputError` with a one-line message naming the file BEFORE anything is written.
 """
 from __future__ import annotations
 
@@ -52,6 +53,7 @@ import contextlib
 import io
 import logging
 import math
+import multiprocessing as mp
 import time
 from pathlib import Path
 from typing import Any, Callable, Iterator, Optional, Sequence
@@ -65,7 +67,9 @@ from compact_perception.config import Params, PreprocessParams
 from compact_perception.cache import write_cache
 from compact_perception.geometry import VIEWS, topview_cell_centres, topview_index
 from compact_perception.lidar import ls_ground_truth, topview_15l
-from compact_perception.nuscenes import LIDAR_CHANNEL, VIEW_CHANNELS
+from compact_perception.nuscenes import (
+    LABEL_RECORD_BYTES, LIDAR_CHANNEL, SWEEP_RECORD_BYTES, VIEW_CHANNELS, dataroot_problem,
+)
 from compact_perception.nuscenes.classmap import EGO_CLASS, GROUND_CLASSES
 from compact_perception.nuscenes.projection import (
     carla_log_depth, inverse_pose, pose_matrix, project_points, quat_yaw, rasterise_points,
@@ -84,18 +88,17 @@ N_CLASSES = len(NUSCENES_NAMES)
 
 
 class NuScenesInputError(FileNotFoundError):
-    """The dataroot is incomplete; the message names what is missing."""
+    """The dataroot is incomplete or a file is corrupt; the one-line message names it."""
 
 
 # ----------------------------------------------------------------------------- checks
 def preflight(dataroot: str | Path, version: str) -> None:
     """Check the dataroot layout before the devkit loads it (names the first missing items)."""
     root = Path(dataroot)
-    if not root.is_dir():
-        raise NuScenesInputError(f"nuScenes dataroot not found: {root}")
+    problem = dataroot_problem(root, version)
+    if problem:
+        raise NuScenesInputError(problem)
     tables = root / version
-    if not tables.is_dir():
-        raise NuScenesInputError(f"nuScenes table folder not found: {tables} (version {version!r})")
     missing = [f"{tables / (t + '.json')}" for t in TABLES if not (tables / f"{t}.json").is_file()]
     if missing:
         raise NuScenesInputError("nuScenes tables missing: " + ", ".join(missing))
@@ -131,12 +134,29 @@ def scene_sample_tokens(nusc: Any, scene: dict) -> list[str]:
     return out
 
 
+def lidar_size_problem(sweep_path: Path, label_path: Path) -> Optional[str]:
+    """Why a sweep/label pair is unusable by its sizes alone, or None: a sweep is N points of
+    5 float32 (20 bytes), its lidarseg file N uint8 labels (1 byte each)."""
+    sweep_bytes, label_bytes = sweep_path.stat().st_size, label_path.stat().st_size
+    if sweep_bytes == 0 or sweep_bytes % SWEEP_RECORD_BYTES:
+        return (f"LiDAR sweep {sweep_path}: {sweep_bytes} bytes, expected a positive multiple of "
+                f"{SWEEP_RECORD_BYTES} (5 float32 per point): truncated or corrupt")
+    n_points = sweep_bytes // SWEEP_RECORD_BYTES
+    if label_bytes != n_points * LABEL_RECORD_BYTES:
+        return (f"lidarseg label file {label_path}: {label_bytes} labels, expected {n_points} "
+                f"(1 uint8 per point of {sweep_path.name}): truncated or corrupt")
+    return None
+
+
 def check_sample_files(nusc: Any, sample_tokens: Sequence[str]) -> None:
-    """Every sweep, lidarseg label file and camera image of ``sample_tokens`` exists, else raise."""
+    """Every sweep, lidarseg label file and camera image of ``sample_tokens`` exists, and every
+    sweep and label file has a whole number of records with one label per point, else raise
+    one :class:`NuScenesInputError` whose single line names the files."""
     root = Path(nusc.dataroot)
     missing: list[str] = []
     for st in sample_tokens:
         sample = nusc.get("sample", st)
+        sweep_path: Optional[Path] = None
         for ch in [LIDAR_CHANNEL] + [VIEW_CHANNELS[v] for v in VIEWS]:
             if ch not in sample["data"]:
                 missing.append(f"sample {st}: no {ch} sample_data")
@@ -145,7 +165,9 @@ def check_sample_files(nusc: Any, sample_tokens: Sequence[str]) -> None:
             path = root / sd["filename"]
             if not path.is_file():
                 kind = "LiDAR sweep" if ch == LIDAR_CHANNEL else "camera image"
-                missing.append(f"{kind} {path}")
+                missing.append(f"{kind} {path} not found")
+            elif ch == LIDAR_CHANNEL:
+                sweep_path = path
         if LIDAR_CHANNEL in sample["data"]:
             sd_tok = sample["data"][LIDAR_CHANNEL]
             try:
@@ -153,12 +175,17 @@ def check_sample_files(nusc: Any, sample_tokens: Sequence[str]) -> None:
             except KeyError:
                 missing.append(f"sample {st}: no lidarseg record for {sd_tok}")
                 continue
-            if not (root / rec["filename"]).is_file():
-                missing.append(f"lidarseg label file {root / rec['filename']}")
+            label_path = root / rec["filename"]
+            if not label_path.is_file():
+                missing.append(f"lidarseg label file {label_path} not found")
+            elif sweep_path is not None:
+                problem = lidar_size_problem(sweep_path, label_path)
+                if problem:
+                    missing.append(problem)
     if missing:
-        shown = "\n  ".join(missing[:20])
-        more = f"\n  ... and {len(missing) - 20} more" if len(missing) > 20 else ""
-        raise NuScenesInputError(f"nuScenes input incomplete ({len(missing)} missing):\n  {shown}{more}")
+        more = f"; ... and {len(missing) - 5} more" if len(missing) > 5 else ""
+        raise NuScenesInputError(f"nuScenes input unusable ({len(missing)} problem(s)): "
+                                 + "; ".join(missing[:5]) + more)
 
 
 # ----------------------------------------------------------------------------- lidar helpers
@@ -226,10 +253,13 @@ def bev_ground_truth(
 def load_lidar(nusc: Any, lidar_sd: dict) -> tuple[np.ndarray, np.ndarray]:
     """(N,5) float32 sweep and (N,) uint8 lidarseg labels of a LIDAR_TOP sample_data."""
     root = Path(nusc.dataroot)
-    sweep = np.fromfile(root / lidar_sd["filename"], dtype=np.float32).reshape(-1, 5)
-    labels = np.fromfile(root / nusc.get("lidarseg", lidar_sd["token"])["filename"], dtype=np.uint8)
-    if len(labels) != len(sweep):
-        raise ValueError(f"{lidar_sd['filename']}: {len(sweep)} points but {len(labels)} lidarseg labels")
+    sweep_path = root / lidar_sd["filename"]
+    label_path = root / nusc.get("lidarseg", lidar_sd["token"])["filename"]
+    problem = lidar_size_problem(sweep_path, label_path)  # also checked up front by check_sample_files
+    if problem:
+        raise NuScenesInputError(problem)
+    sweep = np.fromfile(sweep_path, dtype=np.float32).reshape(-1, 5)
+    labels = np.fromfile(label_path, dtype=np.uint8)
     return sweep, labels
 
 
@@ -289,13 +319,37 @@ def plan_ingestion(nusc: Any, split_seed: int) -> dict[str, list[tuple[str, str]
     return out
 
 
+_WORKER_STATE: dict[str, Any] = {}  # the devkit handle, shared with forked workers
+
+
+def _ingest_pair(pair: tuple[str, str]) -> dict:
+    frame_id, tok = pair
+    st = _WORKER_STATE
+    frame = ingest_sample(st["nusc"], tok, st["resolution"], st["pre"])
+    frame["frame_id"] = frame_id
+    return frame
+
+
 def iter_frames(nusc: Any, pairs: Sequence[tuple[str, str]], resolution: int, pre: PreprocessParams,
-                desc: str = "ingest") -> Iterator[dict]:
-    """Frame dicts (with ``frame_id``) for ``pairs``, with a progress bar."""
-    for frame_id, tok in tqdm(pairs, desc=desc, unit="sample", leave=False):
-        frame = ingest_sample(nusc, tok, resolution, pre)
-        frame["frame_id"] = frame_id
-        yield frame
+                desc: str = "ingest", workers: int = 1) -> Iterator[dict]:
+    """Frame dicts (with ``frame_id``) for ``pairs`` in their order, with a progress bar.
+
+    With ``workers > 1`` the samples are read in forked processes that share the loaded
+    devkit tables; the order and every byte are the same as with one process.
+    """
+    _WORKER_STATE.update(nusc=nusc, resolution=resolution, pre=pre)
+    bar = tqdm(total=len(pairs), desc=desc, unit="sample", leave=False)
+    if workers <= 1 or len(pairs) < 2:
+        frames: Iterator[dict] = map(_ingest_pair, pairs)
+        for frame in frames:
+            bar.update()
+            yield frame
+    else:
+        with mp.get_context("fork").Pool(workers) as pool:
+            for frame in pool.imap(_ingest_pair, pairs, chunksize=2):
+                bar.update()
+                yield frame
+    bar.close()
 
 
 def ingest_nuscenes(
@@ -308,6 +362,7 @@ def ingest_nuscenes(
     split_seed: int,
     source: Optional[str] = None,
     writer: Optional[Callable[[Path, dict, dict], Any]] = None,
+    workers: int = 1,
 ) -> dict:
     """Ingest a dataroot into the cache at ``out_dir``; return the meta dict written.
 
@@ -328,7 +383,8 @@ def ingest_nuscenes(
         "scenes": {name: sorted({fid.rsplit("_", 1)[0] for fid, _ in pairs}) for name, pairs in plan.items()},
     }
     log.info("ingesting %s: %s", dataroot, {k: len(v) for k, v in plan.items()})
-    splits = {name: iter_frames(nusc, plan[name], resolution, preprocess, desc=f"nuscenes {name}") for name in SPLITS}
+    splits = {name: iter_frames(nusc, plan[name], resolution, preprocess, desc=f"nuscenes {name}", workers=workers)
+              for name in SPLITS}
     (writer or write_cache)(out_dir, splits, meta)
     return meta
 
@@ -336,7 +392,15 @@ def ingest_nuscenes(
 def ingest_from_params(params: Params, out_dir: str | Path, sim_root: str | Path = "data/raw/nuscenes_sim") -> dict:
     """Pipeline entry: the configured dataroot, or the simulated export when it is null."""
     ns = params.datasets.nuscenes
+    if ns.dataroot:
+        problem = dataroot_problem(ns.dataroot, ns.version)
+        if problem:
+            raise NuScenesInputError(f"datasets.nuscenes.dataroot: {problem}")
+    elif not Path(sim_root).is_dir():
+        raise NuScenesInputError(f"{sim_root}: simulated nuScenes set not found (datasets.nuscenes.dataroot is "
+                                 "null); run the nuscenes_sim stage first")
     dataroot = Path(ns.dataroot) if ns.dataroot else Path(sim_root)
     source = "nuscenes-lidarseg" if ns.dataroot else "simulated nuScenes-format"
     return ingest_nuscenes(dataroot, ns.version, out_dir, resolution=params.world.resolution.at(params.scale),
-                           preprocess=params.preprocess, split_seed=ns.split_seed, source=source)
+                           preprocess=params.preprocess, split_seed=ns.split_seed, source=source,
+                           workers=params.preprocess.workers)
