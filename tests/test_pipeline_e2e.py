@@ -125,7 +125,8 @@ def test_every_stage_ran_and_outputs_exist(pipeline):
         for m in MODELS:
             assert f"train@{ds}-{m}" in stages and f"evaluate@{ds}-{m}" in stages
             metrics = json.loads((repo / "results" / ds / m / "metrics.json").read_text())
-            assert {k for k in metrics if isinstance(metrics[k], dict)} == TASK_KEYS[m], (ds, m)
+            paper_keys = {"mae_de", "iou_ss", "iou_ls", "iou_bevp", "tm", "mv"}
+            assert {k for k in metrics if k in paper_keys} == TASK_KEYS[m], (ds, m)
     for ds in ("A", "B", "C"):
         assert f"generate@{ds}" in stages and (repo / "data/raw" / ds / "manifest.json").is_file()
         assert (repo / "reports/figures" / f"world_{ds}.png").is_file()
@@ -239,8 +240,10 @@ def test_readme_experiment_command_works_from_a_fresh_shell(pipeline, root):
     (repo / ".venv").symlink_to(root / ".venv")
     fresh = {k: v for k, v in env.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
     fresh["PATH"] = "/usr/local/bin:/usr/bin:/bin"
+    stale = changed_stages(repo, env)  # what earlier tests left out of date also runs
     log = run(["bin/venv", "dvc", "exp", "run", "-S", "train.models.chen_bev.lr=0.0005"], repo, fresh)
-    assert ran_stages(log) == {f"{s}@{ds}-chen_bev" for s in ("train", "evaluate") for ds in DATASETS} | {"report"}
+    expected = {f"{s}@{ds}-chen_bev" for s in ("train", "evaluate") for ds in DATASETS} | {"report"}
+    assert ran_stages(log) == expected | stale
 
 
 def test_library_code_change_reruns_and_changes_the_result(pipeline):
