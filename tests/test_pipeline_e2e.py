@@ -243,7 +243,8 @@ def test_readme_experiment_command_works_from_a_fresh_shell(pipeline, root):
     stale = changed_stages(repo, env)  # what earlier tests left out of date also runs
     log = run(["bin/venv", "dvc", "exp", "run", "-S", "train.models.chen_bev.lr=0.0005"], repo, fresh)
     expected = {f"{s}@{ds}-chen_bev" for s in ("train", "evaluate") for ds in DATASETS} | {"report"}
-    assert ran_stages(log) == expected | stale
+    downstream = {name.replace("train@", "evaluate@", 1) for name in stale if name.startswith("train@")}
+    assert expected <= ran_stages(log) <= expected | stale | downstream
 
 
 def test_library_code_change_reruns_and_changes_the_result(pipeline):
