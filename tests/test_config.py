@@ -46,12 +46,7 @@ def test_wrong_type_is_named(params_dict):
     ],
 )
 def test_impossible_values_are_named(params_dict, path, value, fragment):
-    node = params_dict
-    for key in path[:-1]:
-        node = node[key]
-    node[path[-1]] = value
-    with pytest.raises(ParamsError, match=fragment):
-        parse_params(params_dict)
+    _assert_rejected(params_dict, path, value, fragment)
 
 
 def test_unknown_model_id(params_dict):
@@ -87,12 +82,7 @@ def test_missing_file(tmp_path):
     ],
 )
 def test_strict_types_and_counts(params_dict, path, value, fragment):
-    node = params_dict
-    for key in path[:-1]:
-        node = node[key]
-    node[path[-1]] = value
-    with pytest.raises(ParamsError, match=fragment):
-        parse_params(params_dict)
+    _assert_rejected(params_dict, path, value, fragment)
 
 
 def test_yaml_int_passes_for_a_float(params_dict):
@@ -178,4 +168,14 @@ def test_optimizer_settings_belong_to_their_optimizer(params_dict):
     adam["betas"] = [0.9, 0.999]
     params_dict["train"]["models"]["compact_1l"]["eps"] = 1e-8
     with pytest.raises(ParamsError, match="not used by optimizer 'sgd'"):
+        parse_params(params_dict)
+
+
+def _assert_rejected(params_dict, path, value, fragment):
+    """Set ``path`` to ``value``; validation must fail with a message matching ``fragment``."""
+    node = params_dict
+    for key in path[:-1]:
+        node = node[key]
+    node[path[-1]] = value
+    with pytest.raises(ParamsError, match=fragment):
         parse_params(params_dict)
