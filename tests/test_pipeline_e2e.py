@@ -238,6 +238,11 @@ def test_readme_experiment_command_works_from_a_fresh_shell(pipeline, root):
     repo, env, _ = pipeline
     assert "bin/venv dvc exp run -S scale=paper" in (root / "README.md").read_text()
     (repo / ".venv").symlink_to(root / ".venv")
+    # The copy shares this checkout's venv: its install inputs must not look newer than the
+    # venv's stamp, or `make setup` would re-point the editable install at the copy.
+    stamp = (root / ".venv/.installed").stat().st_mtime
+    for name in ("requirements.txt", "pyproject.toml"):
+        os.utime(repo / name, (stamp - 1, stamp - 1))
     fresh = {k: v for k, v in env.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
     fresh["PATH"] = "/usr/local/bin:/usr/bin:/bin"
     stale = changed_stages(repo, env)  # what earlier tests left out of date also runs

@@ -159,6 +159,24 @@ def evaluate_split(model: torch.nn.Module, loader, device: torch.device, spec: d
     return _split_scores(acc.mean())
 
 
+def _save(obj: Any, path: Path, final: Path) -> None:
+    """``torch.save`` whose write failures are :class:`OSError` naming the file. On a full disk
+    torch raises ``RuntimeError: [enforce fail at inline_container.cc] unexpected pos``."""
+    try:
+        torch.save(obj, path)
+    except OSError as err:
+        raise OSError(err.errno, err.strerror, str(final)) from None
+    except RuntimeError as err:
+        if "inline_container" not in str(err) and "PytorchStreamWriter" not in str(err):
+            raise
+        import errno
+        import shutil
+
+        free = shutil.disk_usage(Path(path).parent).free
+        reason = "No space left on device" if free < (64 << 20) else f"write failed: {str(err).splitlines()[0]}"
+        raise OSError(errno.ENOSPC if free < (64 << 20) else errno.EIO, reason, str(final)) from None
+
+
 def _replay_live(live, history: list[dict]) -> None:
     """Write the logged epochs of ``history`` into a fresh dvclive folder (a resumed run's
     logs then hold exactly the epochs its checkpoint holds, no more, no fewer)."""
@@ -385,9 +403,9 @@ def _train(params: Params, dataset_id: str, model_id: str, cache_dir: Path, out_
         if dist_.is_main:  # the checkpoint first: the logs never hold an epoch it lacks
             if improved:
                 with io.atomic_path(best_path) as tmp:
-                    torch.save({"model": model.state_dict(), "epoch": epoch, "score": score}, tmp)
+                    _save({"model": model.state_dict(), "epoch": epoch, "score": score}, tmp, best_path)
             with io.atomic_path(last_path) as tmp:
-                torch.save({
+                _save({
                     "digest": digest, "epoch": epoch, "model": model.state_dict(),
                     "optimizer": optimizer.state_dict(), "weighting": weighting.state_dict(),
                     "plateau": plateau.state_dict(), "stopper": stopper.state_dict(), "history": history,
@@ -395,7 +413,7 @@ def _train(params: Params, dataset_id: str, model_id: str, cache_dir: Path, out_
                     "torch_rng": torch.get_rng_state(), "stopped_early": stop,
                     "elapsed_s": elapsed_before + time.perf_counter() - t_start, "finished": False,
                     "untrained_score": untrained_score,
-                }, tmp)
+                }, tmp, last_path)
             _log_epoch(live, record)
         ddp.barrier(dist_)
         epochs_this_call += 1
@@ -421,7 +439,7 @@ def _train(params: Params, dataset_id: str, model_id: str, cache_dir: Path, out_
         state = torch.load(last_path, map_location="cpu", weights_only=False)
         state["finished"] = True
         with io.atomic_path(last_path) as tmp:
-            torch.save(state, tmp)
+            _save(state, tmp, last_path)
         io.write_json(summary_path, summary)
     ddp.barrier(dist_)
     ddp.shutdown(dist_)
