@@ -371,8 +371,7 @@ def _train(params: Params, dataset_id: str, model_id: str, cache_dir: Path, out_
             weighting.before_backward(step, n_steps, losses, model)
             if dist_.enabled:  # each rank's update saw its own batch: agree on the mean weights
                 weighting.set_weights(ddp.average_tensor(weighting.w, dist_))
-            total = weighting.total(losses)
-            scaler.scale(total).backward()
+            total = weighting.backward(losses, model, scaler.scale)
             scaler.unscale_(optimizer)
             ddp.average_gradients(list(model.parameters()), dist_)
             scaler.step(optimizer)

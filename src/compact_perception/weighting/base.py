@@ -1,7 +1,7 @@
 """The loss-weighting interface (see the package docstring for the step protocol)."""
 from __future__ import annotations
 
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import torch
 from torch import Tensor, nn
@@ -76,6 +76,16 @@ class LossWeighting:
         return total
 
     # ------------------------------------------------------------------ hooks
+    def backward(self, losses: Mapping[str, Tensor], model: nn.Module,
+                 scale: Callable[[Tensor], Tensor] = lambda t: t) -> Tensor:
+        """Backpropagate this step's losses into the network's ``.grad``; returns the total loss
+        (detached, for logging). Default: ``scale(total(losses)).backward()`` (eq. 8).
+        ``scale``: the trainer's loss scaling (a float16 ``GradScaler.scale``; identity otherwise).
+        Gradient-surgery methods override it and write the combined gradient themselves."""
+        total = self.total(losses)
+        scale(total).backward()
+        return total.detach()
+
     def before_backward(self, step: int, n_steps: int, losses: Mapping[str, Tensor], model: nn.Module) -> None:
         """Called every training step after the forward pass, before ``total(losses).backward()``."""
 
