@@ -68,7 +68,9 @@ class Stepper:
             to_channels_last(self.model)
             data = batch_to_channels_last(data)
         self.data = data
-        self.weighting = build_weighting(params.train.models[model_id], self.model.tasks, self.model)
+        self.weighting = build_weighting(params.train.models[model_id], self.model.tasks, self.model,
+                                         plateau_patience=params.train.plateau_patience,
+                                         plateau_factor=params.train.plateau_factor)
         self.opt = torch.optim.SGD(self.model.parameters(), lr=1e-3, momentum=0.9, weight_decay=1e-4)
         self.scaler = make_grad_scaler(device, cfg.precision)
         self.fwd = maybe_compile(self.model, cfg.compile)

@@ -47,7 +47,8 @@ def time_steps(model_id, dataset_id, batch, size, device, dtype, steps, amp=Fals
     params = load_params()
     torch.manual_seed(0)
     model = build_model(model_id, dataset_id).to(device=device, dtype=dtype).train()
-    weighting = build_weighting(params.train.models[model_id], model.tasks, model)
+    weighting = build_weighting(params.train.models[model_id], model.tasks, model,
+                                plateau_patience=params.train.plateau_patience, plateau_factor=params.train.plateau_factor)
     opt = torch.optim.SGD(model.parameters(), lr=1e-3, momentum=0.9)
     data = synthetic_batch(model, dataset_id, batch, size, device, dtype)
     scaler = torch.amp.GradScaler("cuda", enabled=amp)

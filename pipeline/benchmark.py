@@ -21,7 +21,7 @@ from pathlib import Path
 import torch
 
 from compact_perception import io
-from compact_perception.config import MODEL_IDS
+from compact_perception.catalog import model_ids
 from compact_perception.models import DATASETS, build_model
 from compact_perception.report.efficiency import (CPU_MEMORY_METHOD, CUDA_MEMORY_METHOD, device_name,
                                                    dummy_batch, measure_fps, measure_model, measure_onnx)
@@ -35,7 +35,7 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--params", default="params.yaml")
     ap.add_argument("--datasets", nargs="+", default=["A", "nuscenes"], choices=["A", "B", "C", "nuscenes"])
-    ap.add_argument("--models", nargs="+", default=list(MODEL_IDS), choices=list(MODEL_IDS))
+    ap.add_argument("--models", nargs="+", default=list(model_ids()), choices=list(model_ids()))
     ap.add_argument("--out", default="results/benchmark/efficiency.json")
     ap.add_argument("--no-onnx", action="store_true", help="skip the ONNX Runtime figures of the compact models")
     args = ap.parse_args(argv)

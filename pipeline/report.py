@@ -1,10 +1,14 @@
-"""DVC stage report: tables, figures and reports/index.md from every run's outputs.
+"""DVC stage report: tables, figures, plots data, the headline metrics and reports/index.md
+from every run's outputs.
 
     python -m pipeline.report [--params params.yaml] [--out reports]
 
-Reads results/<ds>/<model>/metrics.json, results/benchmark/efficiency.json,
-runs/<ds>/<model>/{summary.json, live/plots/metrics/*.tsv, eval/*.npz} and
-data/cache/<ds>/meta.json; writes reports/ as a whole, atomically
+Reads, for every run of the seeds params.yaml lists (``seeds`` for the compact models,
+``baseline_seeds`` for the baselines; seed folders of other seeds are ignored):
+results/<ds>/<model>/seed<k>/metrics.json, data/eval/<ds>/<model>/seed<k>/{per_frame.csv, *.npz},
+runs/<ds>/<model>/seed<k>/{summary.json, live/plots/metrics/*.tsv}; and
+results/benchmark/efficiency.json, data/cache/<ds>/meta.json. Writes reports/index.md,
+reports/metrics.json, reports/tables/, reports/figures/report/ and reports/plots/, atomically
 (compact_perception.report.index.build_reports).
 """
 from __future__ import annotations
@@ -12,12 +16,26 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import Any, Optional
 
-from compact_perception.config import DATASET_IDS, MODEL_IDS
+from compact_perception.catalog import MODELS, dataset_ids, model_ids
 from compact_perception.report.collect import ReportInputError
 from compact_perception.report.index import build_reports
 
 from ._common import start
+
+
+def seed_lists(params: Any) -> Optional[dict[str, list[int]]]:
+    """The training seeds of every model: params ``seeds`` for the compact models,
+    ``baseline_seeds`` for the baselines (``catalog.ModelInfo.group``; the same rule as
+    ``Params.seeds_of``, read here field by field so the params audit records both keys);
+    ``None`` (every seed folder found) when params carry no ``seeds``."""
+    seeds = getattr(params, "seeds", None)
+    if seeds is None:
+        return None
+    baseline = getattr(params, "baseline_seeds", None)
+    baseline = seeds if baseline is None else baseline
+    return {m: [int(k) for k in (seeds if MODELS[m].group == "compact" else baseline)] for m in model_ids()}
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -28,8 +46,9 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv)
     params = start(args.params)
     try:
-        build_reports(Path(args.root), Path(args.out), datasets=DATASET_IDS, models=MODEL_IDS,
-                      scale_name=params.scale, figure_frame=params.evaluate.figure_frame)
+        build_reports(Path(args.root), Path(args.out), datasets=dataset_ids(), models=model_ids(),
+                      scale_name=params.scale, figure_frame=params.evaluate.figure_frame,
+                      seeds=seed_lists(params), study=params)
     except ReportInputError as err:
         sys.exit(f"error: {err}")
 

@@ -1,196 +1,231 @@
-"""The claims scorecard (compact_perception.report.claims) on synthetic per-frame scores."""
+"""The claims scorecard (compact_perception.report.claims) on synthetic per-frame scores, three
+training seeds per run (tests/report_fixture.py writes the documented seed<k> layout)."""
 from __future__ import annotations
 
 import csv
 import json
+import shutil
 from pathlib import Path
-from typing import Optional
 
 import numpy as np
 import pandas as pd
 import pytest
 
-from compact_perception import io
-from compact_perception.report.claims import (CLAIMS, MV_MARGIN, NO_DATA, build_claims, claims_for_dataset,
-                                              mgn_weight_margins, write_claims)
+from compact_perception.report.claims import (CLAIMS, MGN_VARIANTS, MV_MARGIN, NO_DATA, build_claims,
+                                              claims_for_dataset, mgn_weight_margins, verdict_counts, write_claims)
 from compact_perception.report.collect import (ReportInputError, align, combination_frames, list_runs,
                                                load_row_frames, read_per_frame)
 from compact_perception.report.paper import load_paper_numbers
+from report_fixture import (COMPACT, MGN, MODELS, SEEDS, bases_with, build_tree, per_frame, run_dirs, seed_map,
+                            write_json, write_run)
 
-TASKS = {
-    "compact_1l": ("mae_de", "iou_ss", "iou_ls", "iou_bevp"), "compact_15l": ("mae_de", "iou_ss", "iou_ls", "iou_bevp"),
-    "compact_15l_mgn": ("mae_de", "iou_ss", "iou_ls", "iou_bevp"), "gradnorm_segnet": ("mae_de", "iou_ss"),
-    "polarnet": ("iou_ls",), "chen_bev": ("iou_bevp",),
-}
-#: 15L beats 1L clearly (TM 1.6 -> 1.39); 15L+MGN equals 15L (same scores); the combination
-#: (TM 1.1) beats both; PolarNet has the highest IoU_LS.
-BASES = {
-    "chen_bev": {"iou_bevp": 0.70},
-    "polarnet": {"iou_ls": 0.90},
-    "gradnorm_segnet": {"mae_de": 0.20, "iou_ss": 0.50},
-    "compact_1l": {"mae_de": 0.10, "iou_ss": 0.60, "iou_ls": 0.40, "iou_bevp": 0.50},
-    "compact_15l": {"mae_de": 0.09, "iou_ss": 0.65, "iou_ls": 0.50, "iou_bevp": 0.55},
-    "compact_15l_mgn": {"mae_de": 0.09, "iou_ss": 0.65, "iou_ls": 0.50, "iou_bevp": 0.55},
-}
 N = 60
+SEEDMAP = seed_map()
 
 
-def _frames(ds: str, model: str, seed: int = 0, bases: Optional[dict] = None, noise: float = 0.01) -> pd.DataFrame:
-    rng = np.random.default_rng(1000 * seed + 10 * list(TASKS).index(model) + len(ds))
-    difficulty = np.random.default_rng(7).normal(0, 0.03, N)
-    df = pd.DataFrame({"frame_id": [f"{ds}-{i:04d}" for i in range(N)]})
-    for c in TASKS[model]:
-        e = rng.normal(0, noise, N)
-        # centred noise: equal bases give exactly equal means (a true difference of 0)
-        df[c] = (bases or BASES)[model][c] + (1 if c == "mae_de" else -1) * difficulty + e - e.mean()
-    if len(TASKS[model]) == 4:
-        df["tm"] = df["mae_de"] + 3 - df["iou_ss"] - df["iou_ls"] - df["iou_bevp"]
-    return df
+def _tree(root: Path, datasets: tuple[str, ...] = ("A",), **kw) -> dict:
+    return build_tree(root, datasets, n_frames=N, curves=False, **kw)
 
 
-def _write(root: Path, ds: str, model: str, df: pd.DataFrame, sub: str = "") -> None:
-    d = root / "data/eval" / ds / model / sub
-    io.write_text(d / "per_frame.csv", df.to_csv(index=False, float_format="%.8f"))
-    io.write_json(root / "results" / ds / model / sub / "metrics.json", {"n_frames": len(df)})
+def _claims(root: Path, datasets: list[str], n_boot: int = 300, seeds=SEEDMAP):
+    return build_claims(root, datasets, load_paper_numbers(), n_boot=n_boot, seeds=seeds)
 
 
-def _summary(root: Path, ds: str, weights: dict, sub: str = "") -> None:
-    io.write_json(root / "runs" / ds / "compact_15l_mgn" / sub / "summary.json",
-                  {"best_epoch": 3, "final_weights": weights})
-
-
-def _tree(root: Path, datasets: tuple[str, ...] = ("A",)) -> None:
-    for ds in datasets:
-        for m in TASKS:
-            _write(root, ds, m, _frames(ds, m))
-            (root / "runs" / ds / m).mkdir(parents=True, exist_ok=True)
-        _summary(root, ds, {"w_de": 1.6, "w_ss": 0.8, "w_ls": 1.1, "w_bevp": 0.5})
-
-
-def _by(rows, claim: str, ds: str = "A"):
-    out = [r for r in rows if r.claim == claim and r.dataset == ds]
-    assert len(out) == 1
+def _by(rows, claim: str, ds: str = "A", model: str = ""):
+    out = [r for r in rows if r.claim == claim and r.dataset == ds and (not model or r.model == model)]
+    assert len(out) == 1, (claim, ds, model, out)
     return out[0]
+
+
+def _summary(root: Path, ds: str, model: str, seed: int, weights: dict) -> None:
+    run, _, _ = run_dirs(root, ds, model, seed)
+    write_json(run / "summary.json", {"best_epoch": 3, "final_weights": weights})
 
 
 def test_scorecard_verdicts_and_paper_differences(tmp_path: Path) -> None:
     _tree(tmp_path, ("A", "C"))
-    rows = build_claims(tmp_path, ["A", "C"], load_paper_numbers(), n_boot=500)
-    assert [(r.claim, r.dataset) for r in rows] == [(c, ds) for c, _ in CLAIMS for ds in ("A", "C")]
+    rows = _claims(tmp_path, ["A", "C"], n_boot=500)
+    expected = []
+    for c, _ in CLAIMS:
+        for ds in ("A", "C"):
+            expected += [(c, ds, m) for m in MGN_VARIANTS] if c in ("mgn-tm", "mgn-mv", "vs-combination",
+                                                                     "mgn-weights") else [(c, ds, None)]
+    assert [(r.claim, r.dataset, r.model if r.variant else None) for r in rows] == expected
     lt = _by(rows, "lidar-tm")
     assert lt.verdict == "reproduced" and lt.paper == pytest.approx(0.004) and lt.n_test_frames == N
-    assert lt.measured == pytest.approx(1.6 - 1.39, abs=0.02) and lt.ci_low <= lt.measured <= lt.ci_high
-    assert lt.n_seeds == 1
+    assert lt.measured == pytest.approx(1.6 - 1.39, abs=1e-6)        # seed shifts cancel in the difference
+    assert lt.ci_low <= lt.measured <= lt.ci_high
+    assert lt.n_seeds == 3 and lt.seeds_per_model == (3, 3) and lt.variant == ""
     assert _by(rows, "lidar-ls").verdict == "reproduced" and _by(rows, "lidar-ls").paper == pytest.approx(0.018)
-    mt = _by(rows, "mgn-tm")                      # 15L+MGN = 15L: no difference
-    assert mt.measured == pytest.approx(0.0, abs=1e-6)
-    assert mt.verdict == "inconclusive" and mt.ci_low < 0 < mt.ci_high and mt.paper == pytest.approx(0.055)
-    assert _by(rows, "mgn-mv").paper == pytest.approx(0.005) and _by(rows, "mgn-mv").margin is None
-    vc = _by(rows, "vs-combination")              # the combination is far better here
-    assert vc.verdict == "contradicted" and vc.paper == pytest.approx(1.430 - 1.393)
-    vc_c = _by(rows, "vs-combination", "C")       # on C the paper says the combination wins
-    assert vc_c.verdict == "reproduced" and vc_c.paper == pytest.approx(0.999 - 0.976)
-    assert "combination has a lower TM" in vc_c.statement
+    for mgn, variant in (("compact_15l_mgn", "Alg. 1"), ("compact_15l_mgn_authors", "authors' code")):
+        mt = _by(rows, "mgn-tm", model=mgn)                 # 15L+MGN = 15L: no difference
+        assert mt.variant == variant and mt.statement.startswith(("15L+MGN (Alg. 1)", "15L+MGN (authors' code)"))
+        assert mt.measured == pytest.approx(0.0, abs=1e-6)
+        assert mt.verdict == "inconclusive" and mt.ci_low < 0 < mt.ci_high
+        assert mt.paper == pytest.approx(0.055)            # the paper's one 15L+MGN row, for both forms
+        assert _by(rows, "mgn-mv", model=mgn).paper == pytest.approx(0.005)
+        assert _by(rows, "mgn-mv", model=mgn).margin is None
+        vc = _by(rows, "vs-combination", model=mgn)         # the combination is far better here
+        assert vc.verdict == "contradicted" and vc.paper == pytest.approx(1.430 - 1.393)
+        vc_c = _by(rows, "vs-combination", "C", model=mgn)  # on C the paper says the combination wins
+        assert vc_c.verdict == "reproduced" and vc_c.paper == pytest.approx(0.999 - 0.976)
+        assert "combination has a lower TM" in vc_c.statement
+        mw = _by(rows, "mgn-weights", model=mgn)           # three seeds, DE the largest in each
+        assert mw.verdict == "reproduced" and mw.n_seeds == 3 and mw.measured == pytest.approx(0.3)
+        assert mw.paper is None
     pl = _by(rows, "polarnet-ls")
     assert pl.verdict == "reproduced" and pl.paper == pytest.approx(0.483 - 0.470)
-    assert pl.measured == pytest.approx(0.90 - 0.50, abs=0.02)
-    mw = _by(rows, "mgn-weights")                 # one seed: a single observation
-    assert mw.verdict == "inconclusive" and mw.measured == pytest.approx(0.5) and mw.ci_low is None
-    assert mw.paper is None and "1 seed(s) < 3" in mw.note
+    assert pl.measured == pytest.approx(0.90 - 0.50, abs=1e-6)   # the same seed shifts on both sides
+    assert "15L+MGN (authors' code)" in pl.note
 
 
-def test_mv_claim_uses_the_mv_of_the_means(tmp_path: Path) -> None:
+def test_mgn_variants_differ_where_their_scores_do(tmp_path: Path) -> None:
+    """Each MGN form is scored on its own runs: authors' code better than 15L, Alg. 1 equal."""
+    _tree(tmp_path, bases=bases_with(compact_15l_mgn_authors={"iou_ls": 0.60, "iou_bevp": 0.60}))
+    rows = _claims(tmp_path, ["A"])
+    alg1, authors = _by(rows, "mgn-tm", model="compact_15l_mgn"), _by(rows, "mgn-tm", model="compact_15l_mgn_authors")
+    assert alg1.verdict == "inconclusive" and authors.verdict == "reproduced"
+    assert authors.measured == pytest.approx(0.15, abs=1e-6)
+    counts = verdict_counts(rows)
+    assert sum(counts.values()) == len(rows) and counts["reproduced"] == sum(r.verdict == "reproduced" for r in rows)
+
+
+def test_mv_claim_uses_the_mv_of_the_means_over_seeds(tmp_path: Path) -> None:
     _tree(tmp_path)
-    frames = load_row_frames(tmp_path, "A", list(TASKS))
-    row = _by(claims_for_dataset(tmp_path, "A", load_paper_numbers(), frames, n_boot=300), "mgn-mv")
+    frames = load_row_frames(tmp_path, "A", MODELS, SEEDMAP)
+    rows = claims_for_dataset(tmp_path, "A", load_paper_numbers(), frames, n_boot=300, seeds=SEEDMAP)
+    row = _by(rows, "mgn-mv", model="compact_15l_mgn")
 
     def mv(df: pd.DataFrame) -> float:
         m = df[["mae_de", "iou_ss", "iou_ls", "iou_bevp"]].mean()
         return float(np.var([m["mae_de"], 1 - m["iou_ss"], 1 - m["iou_ls"], 1 - m["iou_bevp"]]))
 
-    assert row.measured == pytest.approx(mv(frames["compact_15l"][0]) - mv(frames["compact_15l_mgn"][0]), abs=1e-12)
+    assert len(frames["compact_15l"]) == 3
+    want = np.mean([mv(df) for df in frames["compact_15l"]]) - np.mean([mv(df) for df in frames["compact_15l_mgn"]])
+    assert row.measured == pytest.approx(want, abs=1e-12)
 
 
 def test_nuscenes_mv_is_an_equality_claim(tmp_path: Path) -> None:
     _tree(tmp_path, ("nuscenes",))
-    row = _by(build_claims(tmp_path, ["nuscenes"], load_paper_numbers(), n_boot=300), "mgn-mv", "nuscenes")
-    assert row.margin == MV_MARGIN and row.paper == pytest.approx(0.0) and "equal MV" in row.statement
-    assert -MV_MARGIN <= row.ci_low <= row.ci_high <= MV_MARGIN and row.verdict == "reproduced"
+    rows = _claims(tmp_path, ["nuscenes"])
+    for mgn in MGN:
+        row = _by(rows, "mgn-mv", "nuscenes", model=mgn)
+        assert row.margin == MV_MARGIN and row.paper == pytest.approx(0.0) and "equal MV" in row.statement
+        assert -MV_MARGIN <= row.ci_low <= row.ci_high <= MV_MARGIN and row.verdict == "reproduced"
 
 
-def test_seed_layout_and_weights_over_seeds(tmp_path: Path) -> None:
+def test_seed_list_selects_the_runs_and_stale_seed_folders_are_ignored(tmp_path: Path) -> None:
     _tree(tmp_path)
-    # three MGN seeds replace the single run
-    for k, w_de in enumerate((1.5, 1.7, 1.6)):
-        _write(tmp_path, "A", "compact_15l_mgn", _frames("A", "compact_15l_mgn", seed=k), f"seed{k}")
-        _summary(tmp_path, "A", {"w_de": w_de, "w_ss": 0.8, "w_ls": 1.1, "w_bevp": 0.5}, f"seed{k}")
-    runs = list_runs(tmp_path, "A", "compact_15l_mgn")
+    # a stale run of a seed no longer in params (seed 7): far worse MGN and an inverted weight order
+    df = per_frame("A", "compact_15l_mgn", 7, N, bases_with(compact_15l_mgn={"mae_de": 0.9, "iou_ls": 0.0}))
+    write_run(tmp_path, "A", "compact_15l_mgn", 7, df, weights={"w_de": 0.1, "w_ss": 2.0, "w_ls": 1.0, "w_bevp": 0.9},
+              curves=False)
+    runs = list_runs(tmp_path, "A", "compact_15l_mgn", SEEDS)
     assert [r.seed for r in runs] == [0, 1, 2]
     assert runs[1].eval_dir == tmp_path / "data/eval/A/compact_15l_mgn/seed1"
     assert runs[1].metrics_path == tmp_path / "results/A/compact_15l_mgn/seed1/metrics.json"
-    assert [r.seed for r in list_runs(tmp_path, "A", "compact_15l")] == [None]
-    assert list_runs(tmp_path, "A", "no_such_model") == []
-    assert mgn_weight_margins(tmp_path, "A") == pytest.approx([0.4, 0.6, 0.5])
-    rows = build_claims(tmp_path, ["A"], load_paper_numbers(), n_boot=300)
-    mw = _by(rows, "mgn-weights")
-    assert mw.verdict == "reproduced" and mw.n_seeds == 3 and 0.4 - 1e-9 <= mw.ci_low <= mw.ci_high <= 0.6 + 1e-9
-    mt = _by(rows, "mgn-tm")
-    assert mt.n_seeds == 1                         # the smaller of 3 (15L+MGN) and 1 (15L)
+    assert runs[1].run_dir == tmp_path / "runs/A/compact_15l_mgn/seed1"
+    assert [r.seed for r in list_runs(tmp_path, "A", "compact_15l_mgn")] == [0, 1, 2, 7]   # no list: every folder
+    assert [r.seed for r in list_runs(tmp_path, "A", "compact_15l_mgn", [0, 2, 5])] == [0, 2]  # seed 5 never ran
+    assert list_runs(tmp_path, "A", "no_such_model", SEEDS) == []
+    assert mgn_weight_margins(tmp_path, "A", "compact_15l_mgn", SEEDS) == pytest.approx([0.3, 0.3, 0.3])
+    rows = _claims(tmp_path, ["A"])
+    mw, mt = _by(rows, "mgn-weights", model="compact_15l_mgn"), _by(rows, "mgn-tm", model="compact_15l_mgn")
+    assert mw.verdict == "reproduced" and mw.n_seeds == 3
+    assert mt.n_seeds == 3 and mt.measured == pytest.approx(0.0, abs=1e-6)   # seed 7 did not count
+    # without the seed list the stale run counts: the test above is not vacuous
+    stale = _by(_claims(tmp_path, ["A"], seeds=None), "mgn-tm", model="compact_15l_mgn")
+    assert stale.seeds_per_model == (4, 3) and stale.measured < -0.1
     # DE not the largest in one of three seeds: inconclusive
-    _summary(tmp_path, "A", {"w_de": 0.9, "w_ss": 0.8, "w_ls": 1.1, "w_bevp": 0.5}, "seed2")
-    assert _by(build_claims(tmp_path, ["A"], load_paper_numbers(), n_boot=300), "mgn-weights").verdict == "inconclusive"
+    _summary(tmp_path, "A", "compact_15l_mgn", 2, {"w_de": 0.9, "w_ss": 0.8, "w_ls": 1.1, "w_bevp": 0.5})
+    assert _by(_claims(tmp_path, ["A"]), "mgn-weights", model="compact_15l_mgn").verdict == "inconclusive"
+
+
+def test_fewer_seeds_than_three_give_no_weight_verdict(tmp_path: Path) -> None:
+    _tree(tmp_path, seeds=(0,), baseline_seeds=(0,))
+    rows = _claims(tmp_path, ["A"], seeds=seed_map((0,), (0,)))
+    mw = _by(rows, "mgn-weights", model="compact_15l_mgn_authors")
+    assert mw.verdict == "inconclusive" and mw.measured == pytest.approx(0.3) and mw.ci_low is None
+    assert "1 seed(s) < 3" in mw.note and _by(rows, "lidar-tm").n_seeds == 1
+
+
+def test_three_seeds_against_one_baseline_seed(tmp_path: Path) -> None:
+    """Compact models at seeds 0-2, baselines at seed 0 (params baseline_seeds): the paired
+    bootstrap resamples each model's own seeds."""
+    _tree(tmp_path, baseline_seeds=(0,))
+    rows = _claims(tmp_path, ["A"], seeds=seed_map(SEEDS, (0,)))
+    vc = _by(rows, "vs-combination", model="compact_15l_mgn")
+    assert vc.seeds_per_model == (3, 1) and vc.n_seeds == 1 and vc.verdict == "contradicted"
+    # TM: the combination's at seed 0 (each of its 4 terms 0.01 worse) minus MGN's mean over seeds 0-2
+    assert vc.measured == pytest.approx((1.1 + 4 * 0.01) - (1.39 - 4 * 0.01 / 3), abs=1e-6)
 
 
 def test_missing_inputs_give_no_data_rows(tmp_path: Path) -> None:
     _tree(tmp_path)
-    (tmp_path / "data/eval/A/polarnet/per_frame.csv").unlink()
-    (tmp_path / "runs/A/compact_15l_mgn/summary.json").unlink()
-    rows = build_claims(tmp_path, ["A"], load_paper_numbers(), n_boot=200)
-    for claim in ("vs-combination", "polarnet-ls", "mgn-weights"):
-        r = _by(rows, claim)
+    for k in SEEDS:
+        (tmp_path / f"data/eval/A/polarnet/seed{k}/per_frame.csv").unlink()
+        (tmp_path / f"runs/A/compact_15l_mgn/seed{k}/summary.json").unlink()
+    shutil.rmtree(tmp_path / "data/eval/A/compact_15l_mgn_authors")
+    rows = _claims(tmp_path, ["A"], n_boot=200)
+    for claim, model in (("vs-combination", "compact_15l_mgn"), ("polarnet-ls", ""), ("mgn-weights", "compact_15l_mgn"),
+                         ("mgn-tm", "compact_15l_mgn_authors")):
+        r = _by(rows, claim, model=model)
         assert r.verdict == NO_DATA and r.measured is None
     assert "PolarNet" in _by(rows, "polarnet-ls").note
     assert _by(rows, "lidar-tm").verdict == "reproduced"
+    assert _by(rows, "mgn-weights", model="compact_15l_mgn_authors").verdict == "reproduced"
 
 
 def test_bad_inputs_name_the_file(tmp_path: Path) -> None:
     _tree(tmp_path)
-    _summary(tmp_path, "A", {"w_de": 1.0})
-    with pytest.raises(ReportInputError, match=r"compact_15l_mgn/summary.json: final_weights"):
-        build_claims(tmp_path, ["A"], load_paper_numbers(), n_boot=50)
-    bad = tmp_path / "data/eval/A/compact_1l/per_frame.csv"
+    _summary(tmp_path, "A", "compact_15l_mgn", 1, {"w_de": 1.0})
+    with pytest.raises(ReportInputError, match=r"compact_15l_mgn/seed1/summary.json: final_weights"):
+        _claims(tmp_path, ["A"], n_boot=50)
+    bad = tmp_path / "data/eval/A/compact_1l/seed0/per_frame.csv"
     bad.write_text("frame_id,mae_de,iou_ss,iou_ls,iou_bevp,tm\nf0,0.1,x,0.5,0.5,1.0\n")
-    with pytest.raises(ReportInputError, match=r"compact_1l/per_frame.csv: column 'iou_ss'"):
+    with pytest.raises(ReportInputError, match=r"compact_1l/seed0/per_frame.csv: column 'iou_ss'"):
         read_per_frame(bad)
     bad.write_text("frame_id,mae_de\nf0,0.1\nf0,0.2\n")
     with pytest.raises(ReportInputError, match="per_frame.csv: duplicate frame_id"):
         read_per_frame(bad)
 
 
-def test_combination_frames_join_sources_per_frame(tmp_path: Path) -> None:
+def test_combination_frames_join_sources_per_seed_and_frame(tmp_path: Path) -> None:
     _tree(tmp_path)
-    frames = load_row_frames(tmp_path, "A", list(TASKS))
-    comb = frames["combination"][0]
+    frames = load_row_frames(tmp_path, "A", MODELS, SEEDMAP)
+    assert [df.attrs["seed"] for df in frames["combination"]] == [0, 1, 2]
+    comb = frames["combination"][1]
     assert list(comb.columns) == ["mae_de", "iou_ss", "iou_ls", "iou_bevp"] and len(comb) == N
-    assert comb["iou_ls"].equals(frames["polarnet"][0]["iou_ls"])
-    assert comb["mae_de"].equals(frames["gradnorm_segnet"][0]["mae_de"])
+    assert comb["iou_ls"].equals(frames["polarnet"][1]["iou_ls"])
+    assert comb["mae_de"].equals(frames["gradnorm_segnet"][1]["mae_de"])
+    # runs pair by seed value: a baseline without seed 1 leaves seeds 0 and 2
+    no1 = {**frames, "chen_bev": [frames["chen_bev"][0], frames["chen_bev"][2]]}
+    assert [df.attrs["seed"] for df in combination_frames(no1)] == [0, 2]
     # frames only some models scored are dropped when pairing
-    short = {**frames, "chen_bev": [frames["chen_bev"][0].iloc[:10]]}
+    short = {**frames, "chen_bev": [df.iloc[:10] for df in frames["chen_bev"]]}
+    for df, k in zip(short["chen_bev"], SEEDS):
+        df.attrs["seed"] = k
     assert len(combination_frames(short)[0]) == 10
     a, b = align([frames["compact_1l"], short["chen_bev"]], ["iou_bevp"])
-    assert a[0].shape == b[0].shape == (10, 1)
+    assert a[0].shape == b[0].shape == (10, 1) and len(a) == len(b) == 3
 
 
 def test_outputs_deterministic_and_rule_stated(tmp_path: Path) -> None:
     _tree(tmp_path)
     p = load_paper_numbers()
-    first = [x.read_bytes() for x in write_claims(tmp_path, ["A"], p, tmp_path / "o1", n_boot=300)]
-    second = [x.read_bytes() for x in write_claims(tmp_path, ["A"], p, tmp_path / "o2", n_boot=300)]
+    first = [x.read_bytes() for x in write_claims(tmp_path, ["A"], p, tmp_path / "o1", n_boot=300, seeds=SEEDMAP)]
+    second = [x.read_bytes() for x in write_claims(tmp_path, ["A"], p, tmp_path / "o2", n_boot=300, seeds=SEEDMAP)]
     assert first == second
     md = (tmp_path / "o1/claims.md").read_text()
     assert "Verdict rule" in md and "equivalence margin" in md and "fewer than 3 seeds" in md
+    assert "authors' code" in md and "Alg. 1" in md
     rows = list(csv.DictReader((tmp_path / "o1/claims.csv").open()))
-    assert set(rows[0]) >= {"dataset", "claim", "paper", "measured", "ci_low", "ci_high", "n_seeds",
-                            "n_test_frames", "verdict"}
+    assert set(rows[0]) >= {"dataset", "claim", "model", "variant", "paper", "measured", "ci_low", "ci_high",
+                            "n_seeds", "n_test_frames", "verdict"}
     assert {r["verdict"] for r in rows} <= {"reproduced", "contradicted", "inconclusive", NO_DATA}
+    assert {r["n_seeds"] for r in rows if r["verdict"] != NO_DATA} == {"3"}
+    mgn_rows = [r for r in rows if r["claim"] == "mgn-tm"]
+    assert [(r["model"], r["variant"]) for r in mgn_rows] == [("compact_15l_mgn", "Alg. 1"),
+                                                             ("compact_15l_mgn_authors", "authors' code")]
     assert json.loads(json.dumps(rows))                       # plain strings only
+    assert set(COMPACT) <= set(MODELS)

@@ -29,7 +29,7 @@ OTHER_MACHINE = {
     "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "2",  # other core counts
 }
 STAGES = (["generate", "--dataset", "A"], ["preprocess", "--dataset", "A"], ["nuscenes_sim"], ["ingest_nuscenes"],
-          ["train", "--dataset", "A", "--model", "compact_15l"], ["evaluate", "--dataset", "A", "--model", "compact_15l"])
+          ["train", "--dataset", "A", "--model", "compact_15l", "--seed", "0"], ["evaluate", "--dataset", "A", "--model", "compact_15l"])
 
 
 def _tiny_params(root: Path) -> dict:
@@ -43,6 +43,7 @@ def _tiny_params(root: Path) -> dict:
     p["datasets"]["nuscenes"]["sim_samples_per_scene"] = 2
     p["train"]["max_epochs"]["default"] = 1
     p["train"]["batch_size"] = 2
+    p["seeds"] = [0]
     return p
 
 
@@ -66,7 +67,7 @@ def test_other_machine_gives_the_same_bytes(tmp_path, root):
     here = _run_machine(root, tmp_path / "here", {})
     other = _run_machine(root, tmp_path / "other", OTHER_MACHINE)
     assert any(k.startswith("data/raw/nuscenes_sim") for k in here)
-    assert "results/A/compact_15l/metrics.json" in here
+    assert "results/A/compact_15l/seed0/metrics.json" in here
     differ = sorted(k for k in here if here[k] != other.get(k))
     assert set(here) == set(other) and not differ, f"files that differ between machines: {differ}"
 
@@ -74,4 +75,5 @@ def test_other_machine_gives_the_same_bytes(tmp_path, root):
     unpinned = _run_machine(root, tmp_path / "unpinned", {**OTHER_MACHINE, "COMPACT_PERCEPTION_UNPINNED": "1"},
                             stages=(STAGES[0], STAGES[1], STAGES[4], STAGES[5]))
     assert any(unpinned[k] != here[k] for k in unpinned if k.startswith("data/raw/A/"))
-    assert unpinned["results/A/compact_15l/metrics.json"] != here["results/A/compact_15l/metrics.json"]
+    key = "results/A/compact_15l/seed0/metrics.json"
+    assert unpinned[key] != here[key]

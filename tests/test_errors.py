@@ -117,8 +117,8 @@ def test_missing_nuscenes_dataroot_as_a_process(tmp_path):
                        env={**os.environ, "PYTHONPATH": str(ROOT)})
     assert r.returncode == 1, r.stderr
     errors = [line for line in r.stderr.splitlines() if line.startswith("error: ")]
-    assert errors == [f"error: params.yaml: datasets.nuscenes.dataroot: nuScenes dataroot not found: nowhere/nuscenes "
-                      f"(expected a folder holding the v1.0-trainval tables)"], r.stderr
+    assert errors == ["error: params.yaml: datasets.nuscenes.dataroot: nuScenes dataroot not found: nowhere/nuscenes "
+                      "(expected a folder holding the v1.0-trainval tables)"], r.stderr
     assert "Traceback" not in r.stderr
     assert _files(tmp_path) == {p.relative_to(tmp_path)}
 
@@ -146,7 +146,7 @@ def test_truncated_cache_stops_train(tmp_path, victim):
     _truncate(cache / victim)
     params = _train_params(tmp_path)
     out = tmp_path / "runs" / "A" / "compact_1l"
-    msg = _exit_message(main, ["--dataset", "A", "--model", "compact_1l", "--params", str(params),
+    msg = _exit_message(main, ["--dataset", "A", "--model", "compact_1l", "--seed", "0", "--params", str(params),
                                "--cache", str(cache), "--out", str(out)])
     assert str(cache / victim) in msg and "truncated" in msg and "expected" in msg, msg
     assert not (tmp_path / "runs").exists()  # no checkpoint, no dvclive folder
@@ -158,24 +158,26 @@ def test_bad_npy_header_stops_train(tmp_path):
     cache = make_cache(tmp_path / "cache", size=16, counts=(3, 2, 2))
     (cache / "train" / "ls.npy").write_bytes(b"\x93NUMPY")  # cut inside the header
     params = _train_params(tmp_path)
-    msg = _exit_message(main, ["--dataset", "A", "--model", "compact_1l", "--params", str(params),
+    msg = _exit_message(main, ["--dataset", "A", "--model", "compact_1l", "--seed", "0", "--params", str(params),
                                "--cache", str(cache), "--out", str(tmp_path / "run")])
     assert str(cache / "train" / "ls.npy") in msg and "not a readable .npy" in msg
     assert not (tmp_path / "run").exists()
 
 
 def _eval_tree(tmp_path: Path) -> Path:
-    """A cwd laid out like the repository: data/cache/A, runs/A/compact_1l/best.pt, params.yaml."""
+    """A cwd laid out like the repository: data/cache/A, runs/A/compact_1l/seed0/best.pt, params.yaml
+    (seeds: [0])."""
     import torch
 
     from compact_perception.models import build_model
 
     make_cache(tmp_path / "data" / "cache" / "A", size=16, counts=(3, 2, 2))
-    run = tmp_path / "runs" / "A" / "compact_1l"
+    run = tmp_path / "runs" / "A" / "compact_1l" / "seed0"
     run.mkdir(parents=True)
     torch.save({"model": build_model("compact_1l", "A").state_dict(), "epoch": 0}, run / "best.pt")
     d = repo_params_dict()
     d["train"]["device"] = "cpu"
+    d["seeds"] = [0]
     _write_params(tmp_path / "params.yaml", d)
     return tmp_path
 
@@ -197,11 +199,11 @@ def test_missing_checkpoint_stops_evaluate(tmp_path, monkeypatch):
     from pipeline.evaluate import main
 
     root = _eval_tree(tmp_path)
-    (root / "runs" / "A" / "compact_1l" / "best.pt").unlink()
+    (root / "runs" / "A" / "compact_1l" / "seed0" / "best.pt").unlink()
     before = _files(root)
     monkeypatch.chdir(root)
     msg = _exit_message(main, ["--dataset", "A", "--model", "compact_1l", "--params", "params.yaml"])
-    assert "runs/A/compact_1l/best.pt" in msg
+    assert "runs/A/compact_1l/seed0/best.pt" in msg
     assert _files(root) == before
 
 

@@ -10,14 +10,14 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from compact_perception.catalog import dataset_ids, model_ids
 from compact_perception.models import DATASETS, MODELS, build_model, count_parameters
 from compact_perception.models.polarnet import PolarNet, RingConv2d
 
 torch.set_num_threads(1)
 
 S = 32
-DATASET_IDS = ("A", "B", "C", "nuscenes")
-MODEL_IDS = ("compact_1l", "compact_15l", "compact_15l_mgn", "gradnorm_segnet", "polarnet", "chen_bev")
+DATASET_IDS = dataset_ids()
 RANGES = {"de": "relu", "ss": "prob", "ls": "prob", "bevp": "prob"}
 
 
@@ -112,7 +112,7 @@ def test_chen_count_independent_of_resolution() -> None:
 
 # ---------------------------------------------------------------- forward contract
 @pytest.mark.parametrize("dataset_id", DATASET_IDS)
-@pytest.mark.parametrize("model_id", MODEL_IDS)
+@pytest.mark.parametrize("model_id", model_ids())
 def test_forward_shapes_ranges_losses(model_id: str, dataset_id: str) -> None:
     model = _model(model_id, dataset_id).train()
     batch = make_batch(dataset_id, _lidar_ch(model_id))
@@ -131,7 +131,7 @@ def test_forward_shapes_ranges_losses(model_id: str, dataset_id: str) -> None:
         assert loss.requires_grad
 
 
-@pytest.mark.parametrize("model_id", MODEL_IDS)
+@pytest.mark.parametrize("model_id", model_ids())
 def test_shared_layers_resolve_to_convs(model_id: str) -> None:
     model = _model(model_id, "A")
     shared = model.shared_layers()
@@ -162,7 +162,7 @@ def test_build_model_unknown_ids() -> None:
         build_model("nope", "A")
     with pytest.raises(KeyError, match="unknown dataset 'Z'"):
         build_model("polarnet", "Z")
-    assert set(MODELS.keys()) == set(MODEL_IDS)
+    assert set(MODELS.keys()) == set(model_ids())
 
 
 # ---------------------------------------------------------------- PolarNet ring padding

@@ -5,7 +5,8 @@ One module-scoped run (every dataset and model) serves several checks:
 - a second `dvc repro` does nothing;
 - a parameter only dataset C uses changes only C's first stage; a preprocessing parameter
   changes preprocessing and nothing before it;
-- changing one MGN parameter retrains and re-evaluates only the MGN runs, then the report;
+- changing one MGN parameter retrains and re-evaluates only the MGN runs, then the report; one
+  study arm's parameter reruns only that arm's stages and the report;
 - a training stage killed mid-run continues from its last finished epoch;
 - every params key a stage reads is one of the stage's ``params:`` in dvc.yaml;
 - the README's experiment command works from a fresh shell (the venv not on PATH);
@@ -27,14 +28,32 @@ from pathlib import Path
 import pytest
 import yaml
 
+from compact_perception.catalog import compact_model_ids, model_ids
+
+COMPACT_MODEL_IDS = compact_model_ids()
+
 pytestmark = pytest.mark.slow
 
-DATASETS = ("A", "B", "C", "nuscenes")
-MODELS = ("compact_1l", "compact_15l", "compact_15l_mgn", "gradnorm_segnet", "polarnet", "chen_bev")
+# The tiny copy runs one simulated set and the nuScenes path (dvc.yaml's lists are cut to
+# these, see `pipeline`), every model, two seeds: the code paths of the full run at ~1/2 its stages.
+DATASETS = ("A", "nuscenes")
+SEEDS = (0, 1)           # the compact models'
+BASELINE_SEEDS = (0,)
+MODELS = model_ids()
+# The study's arms in the copy: a loss-based method, a gradient-surgery one, one single-task net.
+STUDY_ARMS = ("uw", "pcgrad", "single_de")
+
+
+def seeds_of(model: str) -> tuple[int, ...]:
+    return SEEDS if model in COMPACT_MODEL_IDS else BASELINE_SEEDS
+
+
+def train_stage(ds: str, model: str, seed: int) -> str:
+    return f"{'train' if model in COMPACT_MODEL_IDS else 'train_baseline'}@{ds}-{model}-{seed}"
+ALL_TASKS = {"mae_de", "iou_ss", "iou_ls", "iou_bevp", "tm", "mv"}
 TASK_KEYS = {
-    "compact_1l": {"mae_de", "iou_ss", "iou_ls", "iou_bevp", "tm", "mv"},
-    "compact_15l": {"mae_de", "iou_ss", "iou_ls", "iou_bevp", "tm", "mv"},
-    "compact_15l_mgn": {"mae_de", "iou_ss", "iou_ls", "iou_bevp", "tm", "mv"},
+    "compact_1l": ALL_TASKS, "compact_15l": ALL_TASKS, "compact_15l_mgn": ALL_TASKS,
+    "compact_15l_mgn_authors": ALL_TASKS,
     "gradnorm_segnet": {"mae_de", "iou_ss"},
     "polarnet": {"iou_ls"},
     "chen_bev": {"iou_bevp"},
@@ -47,8 +66,10 @@ def tiny(params: dict) -> dict:
     params["world"]["lidar"]["horizontal_samples"] = 256
     params["world"]["frames_per_episode"] = 2
     params["world"]["workers"] = 1
+    params["seeds"] = list(SEEDS)
+    params["baseline_seeds"] = list(BASELINE_SEEDS)
     for ds in ("A", "B", "C"):
-        params["datasets"][ds]["frames"]["default"] = 10
+        params["datasets"][ds]["frames"]["default"] = 10   # 3 / 2 / 5 frames at the default 3:2:5
     params["datasets"]["nuscenes"]["sim_scenes"]["default"] = 5
     params["datasets"]["nuscenes"]["sim_samples_per_scene"] = 2
     params["preprocess"]["workers"] = 1
@@ -56,6 +77,7 @@ def tiny(params: dict) -> dict:
     params["train"]["batch_size"] = 2
     params["train"]["num_workers"] = 0
     params["benchmark"] = {"warmup": 1, "runs": 3}
+    params["study"]["arm_ids"] = list(STUDY_ARMS)
     return params
 
 
@@ -109,6 +131,12 @@ def pipeline(tmp_path_factory, root: Path):
             (repo / f).parent.mkdir(parents=True, exist_ok=True)
             shutil.copy2(src, repo / f)
     (repo / "dvc.lock").unlink(missing_ok=True)
+    dvc_yaml = (repo / "dvc.yaml").read_text()
+    for old, new in (("sim_ids: [A, B, C]", "sim_ids: [A]"),
+                     ("dataset_ids: [A, B, C, nuscenes]", f"dataset_ids: [{', '.join(DATASETS)}]")):
+        assert old in dvc_yaml, old
+        dvc_yaml = dvc_yaml.replace(old, new)
+    (repo / "dvc.yaml").write_text(dvc_yaml)
     params = tiny(yaml.safe_load((repo / "params.yaml").read_text()))
     (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
     env = dvc_env(tmp)
@@ -123,24 +151,39 @@ def test_every_stage_ran_and_outputs_exist(pipeline):
     stages = ran_stages(log)
     for ds in DATASETS:
         for m in MODELS:
-            assert f"train@{ds}-{m}" in stages and f"evaluate@{ds}-{m}" in stages
-            metrics = json.loads((repo / "results" / ds / m / "metrics.json").read_text())
-            paper_keys = {"mae_de", "iou_ss", "iou_ls", "iou_bevp", "tm", "mv"}
-            assert {k for k in metrics if k in paper_keys} == TASK_KEYS[m], (ds, m)
-    for ds in ("A", "B", "C"):
+            assert f"evaluate@{ds}-{m}" in stages
+            for k in seeds_of(m):
+                assert train_stage(ds, m, k) in stages
+                metrics = json.loads((repo / "results" / ds / m / f"seed{k}" / "metrics.json").read_text())
+                assert {key for key in metrics if key in ALL_TASKS} == TASK_KEYS[m], (ds, m, k)
+                assert json.loads((repo / "runs" / ds / m / f"seed{k}" / "summary.json").read_text())["epochs_run"]
+    for ds in ("A",):
         assert f"generate@{ds}" in stages and (repo / "data/raw" / ds / "manifest.json").is_file()
         assert (repo / "reports/figures" / f"world_{ds}.png").is_file()
         assert (repo / "reports/figures" / f"lidar_preprocessing_{ds}.png").is_file()
     for name in ("index.md", "tables/table2.md", "tables/table2.tex", "tables/table2.csv", "tables/table3.md",
                  "tables/paper_vs_reproduced.md"):
         assert (repo / "reports" / name).is_file(), name
+    assert (repo / "reports/metrics.json").is_file()
+    for name in ("val_tm.csv", "loss_weights.csv"):
+        runs = {row["run"] for row in csv.DictReader((repo / "reports/plots" / name).open())}
+        if name == "val_tm.csv":
+            assert runs == {f"{ds}/{m}/seed{k}" for ds in DATASETS for m in MODELS for k in seeds_of(m)}
+        else:
+            assert {f"{ds}/compact_15l_mgn/seed{k}" for ds in DATASETS for k in SEEDS} <= runs
     for ds in DATASETS:
         for fig in (f"loss_weights_{ds}.png", f"qualitative_{ds}.png", f"curves_{ds}.png"):
             assert (repo / "reports/figures/report" / fig).is_file(), fig
     assert "simulated nuScenes-format" in (repo / "reports/index.md").read_text()
+    for arm in STUDY_ARMS:
+        for k in SEEDS:
+            assert f"study@{arm}-{k}" in stages
+            metrics = json.loads((repo / "results/study" / arm / f"seed{k}" / "A" / "metrics.json").read_text())
+            assert {key for key in metrics if key in ALL_TASKS} == ALL_TASKS, (arm, k)
 
 
 def test_table_numbers_equal_metrics_files(pipeline):
+    """Table II's means are the means over the seeds of each run's metrics file."""
     repo, _, _ = pipeline
     rows = list(csv.DictReader((repo / "reports/tables/table2.csv").open()))
     checked = 0
@@ -148,11 +191,13 @@ def test_table_numbers_equal_metrics_files(pipeline):
         ds, model = row["dataset"], row["row_id"]
         if model not in MODELS:
             continue
-        metrics = json.loads((repo / "results" / ds / model / "metrics.json").read_text())
+        per_seed = [json.loads((repo / "results" / ds / model / f"seed{k}" / "metrics.json").read_text())
+                    for k in seeds_of(model)]
         for key in TASK_KEYS[model] - {"tm", "mv"}:
-            assert float(row[f"{key}_mean"]) == pytest.approx(metrics[key]["mean"], abs=1e-9), (ds, model, key)
+            expected = sum(m[key]["mean"] for m in per_seed) / len(per_seed)
+            assert float(row[f"{key}_mean"]) == pytest.approx(expected, abs=1e-9), (ds, model, key)
             checked += 1
-    assert checked == 4 * (3 * 4 + 2 + 1 + 1)
+    assert checked == len(DATASETS) * (4 * 4 + 2 + 1 + 1)
 
 
 def test_second_repro_does_nothing(pipeline):
@@ -164,11 +209,11 @@ def test_parameter_changes_touch_only_their_stages(pipeline):
     repo, env, _ = pipeline
     original = (repo / "params.yaml").read_text()
     try:
-        set_param(repo, ("datasets", "C", "seed_offset"), 7)
-        assert changed_stages(repo, env) == {"generate@C"}
+        set_param(repo, ("datasets", "A", "seed_offset"), 7)
+        assert changed_stages(repo, env) == {"generate@A"}
         (repo / "params.yaml").write_text(original)
         set_param(repo, ("preprocess", "fill_neighbours"), False)
-        assert changed_stages(repo, env) == {"preprocess@A", "preprocess@B", "preprocess@C", "ingest_nuscenes"}
+        assert changed_stages(repo, env) == {"preprocess@A", "ingest_nuscenes"}
     finally:
         (repo / "params.yaml").write_text(original)
     assert changed_stages(repo, env) == set()
@@ -178,17 +223,25 @@ def test_mgn_parameter_reruns_only_mgn_runs_and_report(pipeline):
     repo, env, _ = pipeline
     set_param(repo, ("train", "models", "compact_15l_mgn", "mgn", "alpha"), 1.2)
     log = run(["dvc", "repro"], repo, env)
-    expected = {f"{s}@{ds}-compact_15l_mgn" for s in ("train", "evaluate") for ds in DATASETS} | {"report"}
+    expected = ({f"train@{ds}-compact_15l_mgn-{k}" for ds in DATASETS for k in SEEDS}
+                | {f"evaluate@{ds}-compact_15l_mgn" for ds in DATASETS} | {"report"})
     assert ran_stages(log) == expected
+
+
+def test_study_arm_parameter_reruns_only_that_arm_and_report(pipeline):
+    repo, env, _ = pipeline
+    set_param(repo, ("study", "arms", "uw", "uw", "lr"), 0.01)
+    log = run(["dvc", "repro"], repo, env)
+    assert ran_stages(log) == {f"study@uw-{k}" for k in SEEDS} | {"report"}
 
 
 def test_killed_training_resumes_from_last_epoch(pipeline):
     repo, env, _ = pipeline
     set_param(repo, ("train", "models", "compact_1l", "lr"), 0.05)
     set_param(repo, ("train", "models", "compact_1l", "max_epochs"), {"default": 4, "paper": 4})
-    last = repo / "runs/A/compact_1l/last.pt"
+    last = repo / "runs/A/compact_1l/seed0/last.pt"
     before = last.stat().st_mtime_ns
-    proc = subprocess.Popen(["dvc", "repro", "train@A-compact_1l"], cwd=repo, env=env,
+    proc = subprocess.Popen(["dvc", "repro", "train@A-compact_1l-0"], cwd=repo, env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     deadline = time.time() + 300
     while time.time() < deadline and (not last.exists() or last.stat().st_mtime_ns == before):
@@ -199,11 +252,11 @@ def test_killed_training_resumes_from_last_epoch(pipeline):
 
     epoch_done = torch.load(last, weights_only=False)["epoch"]
     assert epoch_done < 3, "the run finished before it could be killed"
-    log = run(["dvc", "repro", "train@A-compact_1l"], repo, env)
+    log = run(["dvc", "repro", "train@A-compact_1l-0"], repo, env)
     assert f"resuming after epoch {epoch_done + 1}" in log
-    summary = json.loads((repo / "runs/A/compact_1l/summary.json").read_text())
+    summary = json.loads((repo / "runs/A/compact_1l/seed0/summary.json").read_text())
     assert summary["epochs_run"] == 4
-    steps = (repo / "runs/A/compact_1l/live/plots/metrics/lr.tsv").read_text().split()[2::2]
+    steps = (repo / "runs/A/compact_1l/seed0/live/plots/metrics/lr.tsv").read_text().split()[2::2]
     assert steps == ["0", "1", "2", "3"]
 
 
@@ -224,7 +277,10 @@ def test_every_params_key_a_stage_reads_is_declared(pipeline):
     seen = set()
     for entry in audit:
         values = [a for a in entry["argv"] if not a.startswith("-")]
-        name = entry["stage"] + (f"@{'-'.join(values)}" if values else "")
+        stage = entry["stage"]
+        if stage == "train" and values[1] not in COMPACT_MODEL_IDS:  # the same module, the baselines' stage
+            stage = "train_baseline"
+        name = stage + (f"@{'-'.join(values)}" if values else "")
         assert name in declared, f"audited stage {name} not in dvc.yaml"
         seen.add(name)
         undeclared = [k for k in entry["keys"]
@@ -247,8 +303,10 @@ def test_readme_experiment_command_works_from_a_fresh_shell(pipeline, root):
     fresh["PATH"] = "/usr/local/bin:/usr/bin:/bin"
     stale = changed_stages(repo, env)  # what earlier tests left out of date also runs
     log = run(["bin/venv", "dvc", "exp", "run", "-S", "train.models.chen_bev.lr=0.0005"], repo, fresh)
-    expected = {f"{s}@{ds}-chen_bev" for s in ("train", "evaluate") for ds in DATASETS} | {"report"}
-    downstream = {name.replace("train@", "evaluate@", 1) for name in stale if name.startswith("train@")}
+    expected = ({train_stage(ds, "chen_bev", k) for ds in DATASETS for k in BASELINE_SEEDS}
+                | {f"evaluate@{ds}-chen_bev" for ds in DATASETS} | {"report"})
+    downstream = {"evaluate@" + name.split("@", 1)[1].rsplit("-", 1)[0] for name in stale
+                  if name.startswith(("train@", "train_baseline@"))}
     assert expected <= ran_stages(log) <= expected | stale | downstream
 
 
@@ -257,15 +315,17 @@ def test_library_code_change_reruns_and_changes_the_result(pipeline):
     and the metrics file changes (the issue's first reproduction)."""
     repo, env, _ = pipeline
     metrics_py = repo / "src/compact_perception/metrics.py"
-    before = json.loads((repo / "results/A/compact_1l/metrics.json").read_text())
+    before = json.loads((repo / "results/A/compact_1l/seed0/metrics.json").read_text())
     text = metrics_py.read_text()
     assert text.count("def iou(") == 1
     metrics_py.write_text(text.replace("def iou(", "def _iou_exact(", 1) +
                           "\n\ndef iou(*args, **kwargs):\n    return 0.5 * _iou_exact(*args, **kwargs)\n")
     changed = changed_stages(repo, env)
-    assert {f"{s}@{ds}-{m}" for s in ("train", "evaluate") for ds in DATASETS for m in MODELS} <= changed
+    assert {train_stage(ds, m, k) for ds in DATASETS for m in MODELS for k in seeds_of(m)} <= changed
+    assert {f"evaluate@{ds}-{m}" for ds in DATASETS for m in MODELS} <= changed
+    assert {f"study@{arm}-{k}" for arm in STUDY_ARMS for k in SEEDS} <= changed
     log = run(["dvc", "repro", "evaluate@A-compact_1l"], repo, env)
-    assert {"train@A-compact_1l", "evaluate@A-compact_1l"} <= ran_stages(log)
+    assert {"train@A-compact_1l-0", "train@A-compact_1l-1", "evaluate@A-compact_1l"} <= ran_stages(log)
     assert "already complete" not in log
-    after = json.loads((repo / "results/A/compact_1l/metrics.json").read_text())
+    after = json.loads((repo / "results/A/compact_1l/seed0/metrics.json").read_text())
     assert after["iou_ss"]["mean"] != before["iou_ss"]["mean"]

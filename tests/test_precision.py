@@ -209,8 +209,11 @@ def test_compile_failure_at_first_call_falls_back(monkeypatch: pytest.MonkeyPatc
 
 
 # ----------------------------------------------------------------------------- MGN / GradNorm under autocast
-WEIGHTINGS = {"mgn": (MGNWeighting, {}), "gradnorm": (GradNormWeighting, {}),
-              "mgn_authors": (MGNWeighting, {"authors_mode": True})}
+# The settings of params.yaml's recipes (Algorithm 1: alpha 1.5, lr 0.1; GradNorm: lr 0.025).
+_PLATEAU = {"plateau_patience": 4, "plateau_factor": 0.5, "plateau_rule": "paper"}
+_MGN = {"alpha": 1.5, "lr": 0.1, "lr_min": 1e-4, **_PLATEAU}
+WEIGHTINGS = {"mgn": (MGNWeighting, _MGN), "gradnorm": (GradNormWeighting, {"alpha": 1.5, "lr": 0.025, **_PLATEAU}),
+              "mgn_authors": (MGNWeighting, {**_MGN, "authors_mode": True})}
 
 
 def _updates(precision: str) -> dict[str, MGNWeighting]:
@@ -248,8 +251,8 @@ def test_grad_scale_is_undone() -> None:
     model = build_model("compact_15l", "A").train()
     batch = _batch(model, SIZE, n=1)
     losses = model.compute_losses(model(batch), batch)
-    a = MGNWeighting(model.tasks, model.shared_layers())
-    b = MGNWeighting(model.tasks, model.shared_layers())
+    a = MGNWeighting(model.tasks, model.shared_layers(), **_MGN)
+    b = MGNWeighting(model.tasks, model.shared_layers(), **_MGN)
     b.grad_scale = 2.0 ** 16
     na, nb = a._grad_norms(losses, model), b._grad_norms(losses, model)
     assert torch.allclose(na, nb, rtol=1e-6, atol=0)

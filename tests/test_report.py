@@ -1,33 +1,41 @@
-"""Reports: paper numbers, efficiency measurement, Table II/III, paper-vs-reproduced, figures."""
+"""Reports: paper numbers, efficiency measurement, Table II/III, paper-vs-reproduced, figures,
+the plots' CSV files and the headline metrics, on fake pipeline outputs with three training seeds
+per run (tests/report_fixture.py writes the documented seed<k> layout)."""
 from __future__ import annotations
 
 import csv
 import json
+import math
 import time
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 import pytest
 import torch
 from torch import nn
 
-from compact_perception import io
-from compact_perception.evaluate import summarise
 from compact_perception.metrics import scores_from_means
 from compact_perception.report import efficiency as eff
-from compact_perception.report.collect import ReportInputError, load_results, read_metrics
+from compact_perception.report.collect import (ReportInputError, aggregate_cells, Cell, load_results, load_row_frames,
+                                               read_metrics)
 from compact_perception.report.figures import plot_loss_weights, plot_qualitative, plot_training_curves
-from compact_perception.report.index import build_reports
-from compact_perception.report.collect import load_row_frames
+from compact_perception.report.index import HEADLINE_KEY, HEADLINE_MODEL, build_reports
+from compact_perception.report.plots import write_plot_data
 from compact_perception.report.paper import DATASETS, ROW_IDS, TASK_COLUMNS, load_paper_numbers
-from compact_perception.report.tables import build_table2, build_table3, column_bootstrap, write_table2
+from compact_perception.report.tables import (build_table2, build_table3, column_bootstrap, table2_markdown,
+                                              write_table2)
+from report_fixture import (MGN, MODELS, SEEDS, TASKS, bases_with, build_tree, n_epochs, per_frame, run_dirs,
+                            seed_map, write_json, write_run)
 
-MODELS = ("compact_1l", "compact_15l", "compact_15l_mgn", "gradnorm_segnet", "polarnet", "chen_bev")
-TASKS = {
-    "compact_1l": TASK_COLUMNS, "compact_15l": TASK_COLUMNS, "compact_15l_mgn": TASK_COLUMNS,
-    "gradnorm_segnet": ("mae_de", "iou_ss"), "polarnet": ("iou_ls",), "chen_bev": ("iou_bevp",),
-}
+SEEDMAP = seed_map()
+N_FRAMES = 40
+#: 15L+MGN (both forms) better than 15L on LS and BEVP, equal on DE and SS: IoU_LS (PolarNet),
+#: IoU_BEVP (Chen) and TM (the combination, 1.1 against 15L+MGN's 1.24) have clear winners;
+#: MAE_DE and IoU_SS of 15L and both MGN rows are equal (the best is not separated).
+BASES = bases_with(compact_15l_mgn={"iou_ls": 0.60, "iou_bevp": 0.60},
+                   compact_15l_mgn_authors={"iou_ls": 0.60, "iou_bevp": 0.60})
+ROWS = ["chen_bev", "polarnet", "gradnorm_segnet", "combination", "compact_1l", "compact_15l", "compact_15l_mgn",
+        "compact_15l_mgn_authors"]
 
 
 # ----------------------------------------------------------------------------- paper numbers
@@ -103,157 +111,120 @@ def test_measure_model_cpu_counts() -> None:
 
 
 # ----------------------------------------------------------------------------- fake pipeline outputs
-#: Mean score per model and column of the fake test sets: IoU_LS (PolarNet), IoU_BEVP (Chen)
-#: and TM (the combination, 1.1 against 15L+MGN's 1.24) have clear winners; MAE_DE and IoU_SS
-#: of 15L and 15L+MGN are equal (the best is not separated from the runner-up).
-BASES: dict[str, dict[str, float]] = {
-    "chen_bev": {"iou_bevp": 0.70},
-    "polarnet": {"iou_ls": 0.90},
-    "gradnorm_segnet": {"mae_de": 0.20, "iou_ss": 0.50},
-    "compact_1l": {"mae_de": 0.10, "iou_ss": 0.60, "iou_ls": 0.40, "iou_bevp": 0.50},
-    "compact_15l": {"mae_de": 0.09, "iou_ss": 0.65, "iou_ls": 0.50, "iou_bevp": 0.55},
-    "compact_15l_mgn": {"mae_de": 0.09, "iou_ss": 0.65, "iou_ls": 0.60, "iou_bevp": 0.60},
-}
-N_FRAMES = 30
+def _tree(root: Path, datasets: tuple[str, ...] = ("A", "nuscenes"), **kw) -> dict:
+    kw.setdefault("bases", BASES)
+    return build_tree(root, datasets, n_frames=N_FRAMES, predictions=True, efficiency=True, **kw)
 
 
-def _per_frame(ds: str, model: str) -> pd.DataFrame:
-    """Per-frame scores: shared frame difficulty + the model's base + its own noise."""
-    seed = sum(map(ord, ds)) * 100 + MODELS.index(model)
-    rng = np.random.default_rng(seed)
-    difficulty = np.random.default_rng(sum(map(ord, ds))).normal(0, 0.03, N_FRAMES)
-    df = pd.DataFrame({"frame_id": [f"f{i:03d}" for i in range(N_FRAMES)]})
-    for c in TASKS[model]:
-        sign = 1.0 if c == "mae_de" else -1.0
-        df[c] = BASES[model][c] + sign * difficulty + rng.normal(0, 0.01, N_FRAMES)
-    if len(TASKS[model]) == 4:
-        df["tm"] = df["mae_de"] + 3 - df["iou_ss"] - df["iou_ls"] - df["iou_bevp"]
-    return df
+def _results(root: Path, datasets: tuple[str, ...] = ("A", "nuscenes"), seeds=SEEDMAP) -> dict:
+    return load_results(root, list(datasets), MODELS, seeds)
 
 
-def _metrics(ds: str, model: str, frames: pd.DataFrame) -> dict:
-    out: dict = dict(summarise(frames))
-    if "iou_ss" in TASKS[model]:
-        out["class_iou"] = {"ss": {"miou": 0.5, "n_classes_in_miou": 2, "classes": {"road": 0.75, "sky": 0.25,
-                                                                                     "water": None}},
-                            "definition": "test"}
-    if "mae_de" in TASKS[model]:
-        out["depth"] = {"abs_rel": {"mean": 0.25, "var": 0.01}, "rmse_m": {"mean": 12.5, "var": 4.0},
-                        "delta_1.25": {"mean": 0.6, "var": 0.02}, "n_frames": N_FRAMES, "definition": "test"}
-    out.update(n_frames=N_FRAMES, source="simulated (embedded world)" if ds != "nuscenes" else "simulated nuScenes-format",
-               device="CPU")
-    return out
+def _frames(root: Path, datasets: tuple[str, ...] = ("A", "nuscenes"), seeds=SEEDMAP) -> dict:
+    return {ds: load_row_frames(root, ds, MODELS, seeds) for ds in datasets}
 
 
-def _tsv(path: Path, name: str, values: list[float]) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    rows = "".join(f"{1700000000 + i}\t{i}\t{v}\n" for i, v in enumerate(values))
-    path.write_text(f"timestamp\tstep\t{name}\n" + rows)
+def _stale_run(root: Path, ds: str = "A", model: str = "compact_1l", seed: int = 9) -> None:
+    """A run of a seed no longer in params: absurd scores that would show if it counted."""
+    df = per_frame(ds, model, seed, N_FRAMES, bases_with(**{model: {"mae_de": 5.0, "iou_ss": 0.0, "iou_ls": 0.0,
+                                                                   "iou_bevp": 0.0}}))
+    write_run(root, ds, model, seed, df)
 
 
-def _fake_tree(root: Path, datasets: tuple[str, ...] = ("A", "nuscenes"), S: int = 8) -> dict:
-    all_metrics: dict = {}
-    for ds in datasets:
-        n_cls, n_bev, dvs = (32, 32, False) if ds == "nuscenes" else (23, 9, True)
-        io.write_json(root / "data/cache" / ds / "meta.json",
-                      {"counts": {"train": 6, "val": 2, "test": 2}, "resolution": S, "has_dvs": dvs, "source": "sim"})
-        rng = np.random.default_rng(0)
-        for k, m in enumerate(MODELS):
-            frames = _per_frame(ds, m)
-            met = _metrics(ds, m, frames)
-            all_metrics[(ds, m)] = met
-            io.write_json(root / "results" / ds / m / "metrics.json", met)
-            io.write_text(root / "data/eval" / ds / m / "per_frame.csv", frames.to_csv(index=False, float_format="%.6f"))
-            run = root / "runs" / ds / m
-            metrics_dir = run / "live/plots/metrics"
-            _tsv(metrics_dir / "val_score.tsv", "val_score", [1.5, 1.3, 1.2])
-            if m == "compact_15l_mgn":
-                for w, vals in {"w_de": [1, 1.3, 1.5], "w_ss": [1, 0.9, 0.8], "w_ls": [1, 1.1, 1.2],
-                                "w_bevp": [1, 0.7, 0.5]}.items():
-                    _tsv(metrics_dir / f"{w}.tsv", w, vals)
-            io.write_json(run / "summary.json", {"best_epoch": 1, "epochs_run": 3, "train_seconds": 1.0,
-                                                 "final_weights": {"w_de": 1.5, "w_ss": 0.8, "w_ls": 1.2, "w_bevp": 0.5}})
-            preds: dict = {"frame_ids": np.array(["f0", "f1"])}
-            if "de" in "".join(TASKS[m]):
-                preds["de"] = rng.random((2, 4, 1, S, S)).astype(np.float16)
-            if "iou_ss" in TASKS[m]:
-                preds["ss"] = rng.integers(0, n_cls, (2, 4, S, S)).astype(np.uint8)
-            if "iou_ls" in TASKS[m]:
-                preds["ls"] = rng.integers(0, n_cls, (2, S, S)).astype(np.uint8)
-            if "iou_bevp" in TASKS[m]:
-                preds["bevp"] = (rng.random((2, n_bev, S, S)) > 0.5).astype(np.uint8)
-            io.write_npz(root / "data/eval" / ds / m / "predictions.npz", preds)
-        inputs = {"frame_ids": np.array(["f0", "f1"]), "rgb": rng.integers(0, 255, (2, 4, 3, S, S)).astype(np.uint8),
-                  "lidar": rng.random((2, 15, S, S)).astype(np.float16),
-                  "gt_de": rng.random((2, 4, 1, S, S)).astype(np.float16),
-                  "gt_ss": rng.integers(0, n_cls, (2, 4, S, S)).astype(np.uint8),
-                  "gt_ls": np.full((2, S, S), 255, np.uint8),
-                  "gt_bevp": (rng.random((2, n_bev, S, S)) > 0.5).astype(np.uint8)}
-        if dvs:
-            inputs["dvs"] = rng.integers(0, 3, (2, 4, 2, S, S)).astype(np.uint8)
-        io.write_npz(root / "data/eval" / ds / "compact_1l/inputs.npz", inputs)
-    effj = {"device": "CPU (2 threads)", "is_gpu": False, "resolution": S, "warmup": 1, "runs": 3,
-            "memory_method": "hooks", "models": {}}
-    for ds in datasets:
-        effj["models"][ds] = {m: {"params": 1000 * (k + 1), "size_mb": 0.5 * (k + 1), "peak_memory_mb": 10.0 + k,
-                                  "fps": 1000.0 / (2.0 + k), "latency_ms": 2.0 + k, "device": "CPU (2 threads)"}
-                              for k, m in enumerate(MODELS)}
-    io.write_json(root / "results/benchmark/efficiency.json", effj)
-    return all_metrics
+def test_mean_sd_over_seeds_by_hand(tmp_path: Path) -> None:
+    """1L on set A: seed shifts -0.01, 0, +0.02 make the run-level means 0.11, 0.10, 0.08 (MAE_DE)
+    and 0.59, 0.60, 0.62 (IoU_SS); TM 1.64, 1.60, 1.52; MV of the four means 0.035 in every seed."""
+    mets = _tree(tmp_path, ("A",))
+    _stale_run(tmp_path)
+    write_table2(_results(tmp_path, ("A",)), tmp_path / "out", _frames(tmp_path, ("A",)))
+    row = [r for r in csv.DictReader((tmp_path / "out/table2.csv").open()) if r["row_id"] == "compact_1l"][0]
+    sd = math.sqrt(((0.11 - 0.29 / 3) ** 2 + (0.10 - 0.29 / 3) ** 2 + (0.08 - 0.29 / 3) ** 2) / 2)
+    assert sd == pytest.approx(math.sqrt(7 / 30000))
+    assert float(row["mae_de_mean"]) == pytest.approx(0.29 / 3, abs=1e-12)
+    assert float(row["mae_de_std"]) == pytest.approx(sd, abs=1e-12)
+    assert float(row["iou_ss_mean"]) == pytest.approx(1.81 / 3, abs=1e-12)
+    assert float(row["iou_ss_std"]) == pytest.approx(sd, abs=1e-12)
+    assert float(row["tm"]) == pytest.approx(4.76 / 3, abs=1e-12)
+    assert float(row["tm_std"]) == pytest.approx(4 * sd, abs=1e-12)
+    assert float(row["mv"]) == pytest.approx(0.035, abs=1e-12) and float(row["mv_std"]) == pytest.approx(0, abs=1e-12)
+    # the paper's per-frame variance: the mean over the seeds of each run's
+    for c in TASK_COLUMNS:
+        assert float(row[f"{c}_var"]) == pytest.approx(np.mean([mets[("A", "compact_1l", k)][c]["var"] for k in SEEDS]),
+                                                       abs=1e-15)
+    assert row["n_seeds"] == "3" and row["seeds"] == "0;1;2" and row["n_test_frames"] == str(N_FRAMES)
+    md = (tmp_path / "out/table2.md").read_text()
+    assert f"| 1L | 3 | {0.29 / 3:.3f} ± {sd:.3f} |" in md
+    assert "mean ± sd over the seeds" in md and "variance over the test frames" in md and "var (frames)" in md
+    assert f"Test frames per run: Set A {N_FRAMES}" in md and "1L, 15L, 15L+MGN (Alg. 1), 15L+MGN (authors' code)" in md
+    # aggregate_cells is that computation
+    c = aggregate_cells([Cell(0.11, 1.0), Cell(0.10, 2.0), Cell(0.08, 3.0)])
+    assert (c.mean, c.std, c.var, c.n_seeds) == (pytest.approx(0.29 / 3), pytest.approx(sd), 2.0, 3)
 
 
-def _frames(root: Path, datasets: tuple[str, ...] = ("A", "nuscenes")) -> dict:
-    return {ds: load_row_frames(root, ds, MODELS) for ds in datasets}
+def test_one_seed_prints_n1(tmp_path: Path) -> None:
+    _tree(tmp_path, ("A",), seeds=(0,), baseline_seeds=(0,))
+    tables = build_table2(_results(tmp_path, ("A",), seed_map((0,), (0,))))
+    md = table2_markdown(tables)
+    rows = {r.row_id: r for r in tables["A"]}
+    assert rows["compact_1l"].cells["mae_de"].std is None and rows["compact_1l"].n_seeds == 1
+    assert f"{0.11:.3f} (n=1)" in md and " ± " not in md.split("\n\n")[0].split("\n", 2)[2]
 
 
 def test_table2_numbers_bold_and_combination(tmp_path: Path) -> None:
-    mets = _fake_tree(tmp_path)
-    results = load_results(tmp_path / "results", ["A", "nuscenes"], MODELS)
-    frames = _frames(tmp_path)
-    paths = write_table2(results, tmp_path / "out", frames)
+    mets = _tree(tmp_path)
+    results = _results(tmp_path)
+    paths = write_table2(results, tmp_path / "out", _frames(tmp_path))
     assert sorted(p.name for p in paths) == ["table2.csv", "table2.md", "table2.tex"] and all(p.is_file() for p in paths)
     rows = list(csv.DictReader((tmp_path / "out/table2.csv").open()))
-    assert [r["row_id"] for r in rows[:7]] == ["chen_bev", "polarnet", "gradnorm_segnet", "combination",
-                                               "compact_1l", "compact_15l", "compact_15l_mgn"]
+    assert [r["row_id"] for r in rows[:8]] == ROWS
+    labels = {r["row_id"]: r["label"] for r in rows}
+    assert labels["compact_15l_mgn"] == "15L+MGN (Alg. 1)" and labels["compact_15l_mgn_authors"] == "15L+MGN (authors' code)"
     md = (tmp_path / "out/table2.md").read_text()
     tex = (tmp_path / "out/table2.tex").read_text()
+    assert "| 15L+MGN (Alg. 1) |" in md and "| 15L+MGN (authors' code) |" in md and "authors' public code" in md
+
+    def by_seed(ds: str, m: str, c: str) -> list[float]:
+        return [mets[(ds, m, k)][c]["mean"] for k in SEEDS]
+
     for r in rows:
         ds, rid = r["dataset"], r["row_id"]
         if rid == "combination":
             src = {"mae_de": "gradnorm_segnet", "iou_ss": "gradnorm_segnet", "iou_ls": "polarnet", "iou_bevp": "chen_bev"}
-            vals = [mets[(ds, src[c])][c]["mean"] for c in TASK_COLUMNS]
-            terms = [vals[0]] + [1 - v for v in vals[1:]]
-            assert float(r["tm"]) == pytest.approx(sum(terms), abs=1e-12)
-            assert float(r["mv"]) == pytest.approx(float(np.var(terms)), abs=1e-12)   # MV of the four means
-            for c, v in zip(TASK_COLUMNS, vals):
-                assert float(r[f"{c}_mean"]) == v
+            tms, mvs = [], []
+            for k in SEEDS:                           # the combination of each seed's baselines
+                terms = [mets[(ds, src["mae_de"], k)]["mae_de"]["mean"]] + [
+                    1 - mets[(ds, src[c], k)][c]["mean"] for c in TASK_COLUMNS[1:]]
+                tms.append(sum(terms))
+                mvs.append(float(np.var(terms)))      # MV of the four means
+            assert float(r["tm"]) == pytest.approx(np.mean(tms), abs=1e-12)
+            assert float(r["tm_std"]) == pytest.approx(np.std(tms, ddof=1), abs=1e-12)
+            assert float(r["mv"]) == pytest.approx(np.mean(mvs), abs=1e-12)
+            for c in TASK_COLUMNS:
+                assert float(r[f"{c}_mean"]) == pytest.approx(np.mean(by_seed(ds, src[c], c)), abs=1e-12)
             continue
-        met = mets[(ds, rid)]
-        for c in TASK_COLUMNS:                        # every cell present, equal to the metrics file
+        for c in TASK_COLUMNS:                        # every cell present, equal to the metrics files
             if c in TASKS[rid]:
-                assert float(r[f"{c}_mean"]) == met[c]["mean"] and float(r[f"{c}_var"]) == met[c]["var"]
-                assert f"{met[c]['mean']:.3f} ±" in md and f"{met[c]['mean']:.3f} $\\pm$" in tex
+                assert float(r[f"{c}_mean"]) == pytest.approx(np.mean(by_seed(ds, rid, c)), abs=1e-12)
+                assert float(r[f"{c}_std"]) == pytest.approx(np.std(by_seed(ds, rid, c), ddof=1), abs=1e-12)
+                assert f"{float(r[f'{c}_mean']):.3f} ± {float(r[f'{c}_std']):.3f}" in md
+                assert f"{float(r[f'{c}_mean']):.3f} $\\pm$ {float(r[f'{c}_std']):.3f}" in tex
             else:
                 assert r[f"{c}_mean"] == ""
-        if len(TASKS[rid]) == 4:
-            # a compact row: TM and MV of its four means, computed like the combination's
-            means = {c: met[c]["mean"] for c in TASK_COLUMNS}
-            terms = [means["mae_de"]] + [1 - means[c] for c in TASK_COLUMNS[1:]]
-            assert float(r["tm"]) == met["tm"]["mean"] == pytest.approx(sum(terms), abs=1e-12)
-            assert float(r["mv"]) == met["mv"]["value"] == pytest.approx(float(np.var(terms)), abs=1e-12)
-    # bold only where the bootstrap separates the best from the runner-up
+        if len(TASKS[rid]) == 4:                      # TM and MV of each run's four means, over seeds
+            assert float(r["tm"]) == pytest.approx(np.mean([mets[(ds, rid, k)]["tm"]["mean"] for k in SEEDS]), abs=1e-12)
+            assert float(r["mv"]) == pytest.approx(np.mean([mets[(ds, rid, k)]["mv"]["value"] for k in SEEDS]), abs=1e-12)
+    # bold only where the bootstrap (seeds and frames) separates the best from the runner-up
     for ds in ("A", "nuscenes"):
         dsr = {r["row_id"]: r for r in rows if r["dataset"] == ds}
         bold = {c: [rid for rid, r in dsr.items() if c in r["bold"].split(";")] for c in
                 ("mae_de", "iou_ss", "iou_ls", "iou_bevp", "tm", "mv")}
         assert bold["iou_ls"] == ["polarnet"] and bold["iou_bevp"] == ["chen_bev"] and bold["tm"] == ["combination"]
-        assert bold["mae_de"] == [] and bold["iou_ss"] == []           # 15L and 15L+MGN are not separated
+        assert bold["mae_de"] == [] and bold["iou_ss"] == []           # 15L and both MGN rows are not separated
         for c in ("mae_de", "iou_ss"):
             flagged = [rid for rid, r in dsr.items() if c in r["best_inconclusive"].split(";")]
-            assert len(flagged) == 1 and flagged[0] in ("compact_15l", "compact_15l_mgn")
+            assert len(flagged) == 1 and flagged[0] in ("compact_15l", *MGN)
         assert len(bold["mv"]) <= 1
-        # the combination's task cells are copies: never bold, never compared
-        assert dsr["combination"]["bold"] in ("", "tm", "mv", "tm;mv")
+        assert dsr["combination"]["bold"] in ("", "tm", "mv", "tm;mv")   # its task cells are copies
     assert "**" in md and "\\textbf{" in tex and "inconclusive against" in md and "$^\\dagger$" in tex
     # without per-frame scores nothing is bold and every best value says why
     plain = build_table2(results)
@@ -262,23 +233,27 @@ def test_table2_numbers_bold_and_combination(tmp_path: Path) -> None:
 
 
 def test_column_bootstrap_matches_direct_bootstrap(tmp_path: Path) -> None:
-    _fake_tree(tmp_path, ("A",))
+    _tree(tmp_path, ("A",))
     frames = _frames(tmp_path, ("A",))["A"]
+    assert len(frames["compact_15l_mgn"]) == 3
     r = column_bootstrap("compact_15l_mgn", "compact_15l", "iou_ls", frames)
-    diff = frames["compact_15l_mgn"][0]["iou_ls"].mean() - frames["compact_15l"][0]["iou_ls"].mean()
-    assert r is not None and r.estimate == pytest.approx(diff) and r.ci_low > 0
-    comb = column_bootstrap("combination", "compact_15l_mgn", "tm", frames)
+    diff = np.mean([df["iou_ls"].mean() for df in frames["compact_15l_mgn"]]) - np.mean(
+        [df["iou_ls"].mean() for df in frames["compact_15l"]])
+    assert r is not None and r.estimate == pytest.approx(diff) and r.ci_low > 0 and r.n_seeds == (3, 3)
+    comb = column_bootstrap("combination", "compact_15l_mgn_authors", "tm", frames)
     assert comb is not None and comb.ci_low > 0
     assert column_bootstrap("polarnet", "compact_15l", "tm", frames) is None     # PolarNet has no TM
 
 
 def test_table2_missing_model_row_is_na(tmp_path: Path) -> None:
-    _fake_tree(tmp_path, ("A",))
-    (tmp_path / "results/A/polarnet/metrics.json").unlink()
-    tables = build_table2(load_results(tmp_path / "results", ["A"], MODELS))
+    _tree(tmp_path, ("A",))
+    for k in SEEDS:
+        (tmp_path / f"results/A/polarnet/seed{k}/metrics.json").unlink()
+    tables = build_table2(_results(tmp_path, ("A",)))
     rows = {r.row_id: r for r in tables["A"]}
     assert not rows["polarnet"].available and not rows["combination"].available
     assert rows["combination"].cells["tm"] is None and rows["combination"].cells["mae_de"] is not None
+    assert "|  | PolarNet |  | n/a | n/a |" in table2_markdown(tables)
 
 
 def test_bad_metrics_file_names_the_file(tmp_path: Path) -> None:
@@ -289,44 +264,62 @@ def test_bad_metrics_file_names_the_file(tmp_path: Path) -> None:
 
 
 def test_table3_combination_sums(tmp_path: Path) -> None:
-    _fake_tree(tmp_path, ("A",))
+    _tree(tmp_path, ("A",))
     effj = json.loads((tmp_path / "results/benchmark/efficiency.json").read_text())
     rows = {r.row_id: r for r in build_table3(effj)["A"]}
     comb = rows["combination"]
-    assert comb.params == comb.total_params == 4000 + 5000 + 6000        # gradnorm, polarnet, chen
-    assert comb.latency_ms == pytest.approx(5 + 6 + 7) and comb.fps == pytest.approx(1000 / 18)
+    assert comb.params == comb.total_params == 5000 + 6000 + 7000        # gradnorm, polarnet, chen
+    assert comb.latency_ms == pytest.approx(6 + 7 + 8) and comb.fps == pytest.approx(1000 / 21)
     assert rows["compact_1l"].total_params == rows["compact_1l"].params == 1000
-    assert rows["polarnet"].total_params is None
+    assert rows["compact_15l_mgn_authors"].total_params == 4000 and rows["polarnet"].total_params is None
 
 
 def test_figures_write_pngs(tmp_path: Path) -> None:
-    _fake_tree(tmp_path, ("A",))
-    run = tmp_path / "runs/A"
-    assert plot_loss_weights(run / "compact_15l_mgn", tmp_path / "f/w.png").stat().st_size > 0
-    assert plot_loss_weights(run / "compact_1l", tmp_path / "f/none.png") is None      # no weight logs
-    assert plot_training_curves({m: run / m for m in MODELS}, tmp_path / "f/c.png").stat().st_size > 0
-    inputs = dict(np.load(tmp_path / "data/eval/A/compact_1l/inputs.npz"))
-    preds = {m: dict(np.load(tmp_path / "data/eval/A" / m / "predictions.npz")) for m in MODELS}
+    _tree(tmp_path, ("A",))
+    runs = {m: [run_dirs(tmp_path, "A", m, k)[0] for k in SEEDS] for m in MODELS}
+    two = plot_loss_weights({"15L+MGN (Alg. 1)": runs["compact_15l_mgn"],
+                             "15L+MGN (authors' code)": runs["compact_15l_mgn_authors"]}, tmp_path / "f/w.png")
+    assert two.stat().st_size > 0
+    assert plot_loss_weights(runs["compact_15l_mgn"][0], tmp_path / "f/w1.png").stat().st_size > 0   # one run
+    assert plot_loss_weights(runs["compact_1l"], tmp_path / "f/none.png") is None      # no weight logs
+    assert plot_training_curves(runs, tmp_path / "f/c.png").stat().st_size > 0
+    ev = {m: run_dirs(tmp_path, "A", m, 0)[2] for m in MODELS}
+    inputs = dict(np.load(ev["compact_1l"] / "inputs.npz"))
+    preds = {m: dict(np.load(ev[m] / "predictions.npz")) for m in MODELS}
     png = plot_qualitative("A", inputs, preds, tmp_path / "f/q.png", frame=1)
     assert png.read_bytes()[:4] == b"\x89PNG"
 
 
 def test_build_reports_end_to_end(tmp_path: Path) -> None:
-    _fake_tree(tmp_path)
-    rel = build_reports(tmp_path, tmp_path / "reports", datasets=("A", "nuscenes"), models=MODELS, scale_name="default")
+    mets = _tree(tmp_path)
+    _stale_run(tmp_path)                                  # seed 9 is not in params: must not count
+    rel = build_reports(tmp_path, tmp_path / "reports", datasets=("A", "nuscenes"), models=MODELS,
+                        scale_name="default", seeds=SEEDMAP)
     out = tmp_path / "reports"
-    for name in ("index.md", "tables/table2.md", "tables/table3.tex", "tables/paper_vs_reproduced.csv",
+    for name in ("index.md", "metrics.json", "tables/table2.md", "tables/table3.tex", "tables/paper_vs_reproduced.csv",
                  "figures/report/loss_weights_A.png", "figures/report/curves_nuscenes.png",
-                 "figures/report/qualitative_A.png"):
+                 "figures/report/qualitative_A.png", "plots/val_tm.csv", "plots/loss_weights.csv"):
         assert (out / name).is_file() and name in rel
     index = (out / "index.md").read_text()
     assert "simulated (embedded world)" in index and "simulated nuScenes-format" in index
-    assert "6/2/2" in index and "No GPU on this machine" in index
+    assert f"6/2/{N_FRAMES}" in index and "No GPU on this machine" in index
+    assert f"Test frames scored per run: Set A {N_FRAMES}, nuScenes {N_FRAMES}." in index
+    assert "| 15L+MGN (authors' code) | 0, 1, 2 (3) |" in index and "seed9" not in index
+    for link in ("(tables/claims.md)", "(plots/val_tm.csv)", "(plots/loss_weights.csv)", "(metrics.json)"):
+        assert link in index
+    t2 = {(r["dataset"], r["row_id"]): r for r in csv.DictReader((out / "tables/table2.csv").open())}
+    assert float(t2[("A", "compact_1l")]["mae_de_mean"]) == pytest.approx(0.29 / 3, abs=1e-12)   # not seed 9's 5.0
+    assert t2[("A", "compact_1l")]["seeds"] == "0;1;2"
     cmp_rows = list(csv.DictReader((out / "tables/paper_vs_reproduced.csv").open()))
-    a_mgn_tm = [r for r in cmp_rows if r["dataset"] == "A" and r["row_id"] == "compact_15l_mgn" and r["column"] == "tm"]
-    assert len(a_mgn_tm) == 1 and float(a_mgn_tm[0]["paper"]) == 1.393 and a_mgn_tm[0]["reproduced"] != ""
+    for mgn in MGN:                                       # both MGN forms against the paper's one 15L+MGN row
+        a_tm = [r for r in cmp_rows if r["dataset"] == "A" and r["row_id"] == mgn and r["column"] == "tm"]
+        assert len(a_tm) == 1 and float(a_tm[0]["paper"]) == 1.393 and a_tm[0]["paper_row"] == "compact_15l_mgn"
+        assert float(a_tm[0]["reproduced"]) == pytest.approx(np.mean([mets[("A", mgn, k)]["tm"]["mean"] for k in SEEDS]))
+        assert a_tm[0]["n_seeds"] == "3" and float(a_tm[0]["reproduced_std"]) > 0
     comb = [r for r in cmp_rows if r["dataset"] == "nuscenes" and r["row_id"] == "combination" and r["column"] == "tm"]
     assert float(comb[0]["paper"]) == 1.124
+    cmp_md = (out / "tables/paper_vs_reproduced.md").read_text()
+    assert "15L+MGN (authors' code) (paper: 15L+MGN)" in cmp_md and "mean ± sd over the seeds" in cmp_md
     assert not list(out.glob(".report-*"))
     # the claims scorecard and the metrics beyond the paper's, linked from the index
     for name in ("tables/claims.md", "tables/claims.csv", "tables/extra_metrics.md", "tables/extra_metrics.csv",
@@ -334,19 +327,80 @@ def test_build_reports_end_to_end(tmp_path: Path) -> None:
         assert (out / name).is_file() and name in rel
         assert f"({name})" in index
     claims = list(csv.DictReader((out / "tables/claims.csv").open()))
-    assert {(r["claim"], r["dataset"]) for r in claims} >= {(c, ds) for ds in ("A", "nuscenes") for c in
-                                                            ("lidar-tm", "mgn-tm", "mgn-mv", "vs-combination", "mgn-weights")}
+    keys = {(r["claim"], r["dataset"], r["model"]) for r in claims}
+    for ds in ("A", "nuscenes"):
+        for c in ("mgn-tm", "mgn-mv", "vs-combination", "mgn-weights"):
+            assert {(c, ds, m) for m in MGN} <= keys
+        assert ("lidar-tm", ds, "compact_15l") in keys
+    assert {r["n_seeds"] for r in claims if r["verdict"] != "no data"} == {"3"}
     assert "Verdict rule" in index and "reproduced" in (out / "tables/claims.md").read_text()
     extra = list(csv.DictReader((out / "tables/extra_metrics.csv").open()))
-    mgn = [r for r in extra if r["dataset"] == "A" and r["row_id"] == "compact_15l_mgn"][0]
+    mgn = [r for r in extra if r["dataset"] == "A" and r["row_id"] == "compact_15l_mgn_authors"][0]
     assert float(mgn["miou_ss"]) == 0.5 and float(mgn["rmse_m_mean"]) == 12.5 and mgn["miou_ls"] == ""
+    assert mgn["n_seeds"] == "3" and float(mgn["rmse_m_std"]) == 0.0 and float(mgn["rmse_m_var"]) == 4.0
     per_class = list(csv.DictReader((out / "tables/extra_metrics_per_class.csv").open()))
     water = [r for r in per_class if r["class"] == "water"]
     assert water and all(r["iou"] == "" for r in water)        # absent class: no IoU
-    # Table II's columns are unchanged
     header = (out / "tables/table2.csv").read_text().splitlines()[0].split(",")
-    assert header[:15] == ["dataset", "row_id", "label", "available"] + [f"{c}_{k}" for c in TASK_COLUMNS
-                                                                        for k in ("mean", "var")] + ["tm", "mv", "bold"]
+    assert header[:10] == ["dataset", "row_id", "label", "available", "n_seeds", "seeds", "n_test_frames",
+                           "mae_de_mean", "mae_de_std", "mae_de_var"]
+    # headline: TM of 15L+MGN (authors' code), mean over seeds, 4 decimals; the verdict counts
+    head = json.loads((out / "metrics.json").read_text())
+    assert HEADLINE_MODEL == "compact_15l_mgn_authors" and set(head) == {HEADLINE_KEY, "claims"}
+    for ds in ("A", "nuscenes"):
+        want = np.mean([mets[(ds, HEADLINE_MODEL, k)]["tm"]["mean"] for k in SEEDS])
+        assert head[HEADLINE_KEY][ds] == round(want, 4)
+    counts = {v: sum(r["verdict"] == v for r in claims) for v in ("reproduced", "contradicted", "inconclusive")}
+    assert head["claims"] == {**counts, "no_data": sum(r["verdict"] == "no data" for r in claims)}
+    assert sum(head["claims"].values()) == len(claims)
+    assert len(json.dumps(head)) < 200
+
+
+def test_plots_csv_one_row_per_run_and_epoch(tmp_path: Path) -> None:
+    _tree(tmp_path, ("A", "nuscenes"), baseline_seeds=(0,))
+    _stale_run(tmp_path, "nuscenes", "compact_15l_mgn")
+    seeds = seed_map(SEEDS, (0,))
+    paths = write_plot_data(tmp_path, ("A", "nuscenes"), MODELS, tmp_path / "plots", seeds)
+    assert [p.name for p in paths] == ["val_tm.csv", "loss_weights.csv"]
+    val = list(csv.DictReader((tmp_path / "plots/val_tm.csv").open()))
+    assert list(val[0]) == ["epoch", "run", "val_tm"]
+    want = {(f"{ds}/{m}/seed{k}", e) for ds in ("A", "nuscenes") for m in MODELS for k in seeds[m]
+            for e in range(n_epochs(m, k))}
+    got = [(r["run"], int(r["epoch"])) for r in val]
+    assert len(got) == len(set(got)) and set(got) == want          # every run, every epoch, once
+    assert {r.split("/")[1] for r, _ in got} == set(MODELS)
+    assert float(next(r["val_tm"] for r in val if r["run"] == "A/compact_1l/seed2" and r["epoch"] == "1")) == \
+        pytest.approx(1.5 - 0.1 + 0.02)
+    w = list(csv.DictReader((tmp_path / "plots/loss_weights.csv").open()))
+    assert list(w[0]) == ["epoch", "run", "task", "weight"]
+    want_w = {(f"{ds}/{m}/seed{k}", t, e) for ds in ("A", "nuscenes") for m in MGN for k in SEEDS
+              for t in ("de", "ss", "ls", "bevp") for e in range(n_epochs(m, k))}
+    got_w = [(r["run"], r["task"], int(r["epoch"])) for r in w]
+    assert len(got_w) == len(set(got_w)) and set(got_w) == want_w
+    assert not any("seed9" in r for r, _ in got)
+
+
+@pytest.mark.parametrize("name,template,y,extra", [("val_tm.csv", "by_run", "val_tm", None),
+                                                   ("loss_weights.csv", "weights_by_run", "weight", "task")])
+def test_dvc_plot_templates_render_the_csv(tmp_path: Path, name: str, template: str, y: str, extra) -> None:
+    """The custom templates in .dvc/plots/ (DVC anchors, colour by run) fill with the CSV rows as
+    dvc's renderer does (`dvc plots show`; dvc.yaml: {template: <name>, x: epoch, y: <y>})."""
+    from dvc_render import VegaRenderer
+
+    root = Path(__file__).resolve().parents[1]
+    text = (root / ".dvc/plots" / f"{template}.json").read_text()
+    for anchor in ("<DVC_METRIC_DATA>", "<DVC_METRIC_X>", "<DVC_METRIC_Y>"):
+        assert anchor in text
+    _tree(tmp_path, ("A",), baseline_seeds=(0,))
+    write_plot_data(tmp_path, ("A",), MODELS, tmp_path / "plots", seed_map(SEEDS, (0,)))
+    rows = [{**r, "rev": "workspace"} for r in csv.DictReader((tmp_path / "plots" / name).open())]
+    spec = VegaRenderer(rows, name, template=template, template_dir=str(root / ".dvc/plots"), x="epoch",
+                        y=y).get_filled_template()
+    assert spec["data"]["values"] == rows and "<DVC_METRIC" not in json.dumps(spec)
+    enc = spec["encoding"]
+    assert enc["x"]["field"] == "epoch" and enc["y"]["field"] == y and enc["color"]["field"] == "run"
+    if extra:
+        assert enc["strokeDash"]["field"] == extra
 
 
 def test_read_metrics_mv_shapes(tmp_path: Path) -> None:
@@ -366,11 +420,11 @@ def test_read_metrics_mv_shapes(tmp_path: Path) -> None:
 
 def test_table2_mv_is_the_mv_of_the_means_for_every_row(tmp_path: Path) -> None:
     """An older metrics file holding the mean of a per-frame MV still shows eq. 7 of the means."""
-    mets = _fake_tree(tmp_path, ("A",))
-    stale = dict(mets[("A", "compact_1l")])
+    mets = _tree(tmp_path, ("A",), seeds=(0,), baseline_seeds=(0,))
+    stale = dict(mets[("A", "compact_1l", 0)])
     stale["mv"] = {"mean": 0.5, "var": 0.01}
-    io.write_json(tmp_path / "results/A/compact_1l/metrics.json", stale)
-    rows = {r.row_id: r for r in build_table2(load_results(tmp_path / "results", ["A"], MODELS))["A"]}
+    write_json(run_dirs(tmp_path, "A", "compact_1l", 0)[1], stale)
+    rows = {r.row_id: r for r in build_table2(_results(tmp_path, ("A",), seed_map((0,), (0,))))["A"]}
     means = {c: stale[c]["mean"] for c in TASK_COLUMNS}
     assert rows["compact_1l"].cells["mv"].mean == pytest.approx(scores_from_means(means)["mv"], abs=1e-15)
     assert rows["compact_1l"].cells["tm"].mean == pytest.approx(scores_from_means(means)["tm"], abs=1e-15)

@@ -53,14 +53,14 @@ def reference(tmp_path_factory, cache) -> tuple[bytes, dict]:
     with (Path(__file__).resolve().parents[1] / "params.yaml").open() as fh:
         params = _params(yaml.safe_load(fh))
     run = tmp_path_factory.mktemp("ref") / "run"
-    summary = train_run(params, "A", MODEL, cache, run)
+    summary = train_run(params, "A", MODEL, 0, cache, run)
     return _score(params, cache, run), summary
 
 
 @pytest.mark.slow
 def test_worker_count_does_not_change_the_result(tmp_path, params_dict, cache, reference):
     params = _params(params_dict, workers=0)
-    summary = train_run(params, "A", MODEL, cache, tmp_path / "run")
+    summary = train_run(params, "A", MODEL, 0, cache, tmp_path / "run")
     assert summary["best_val_score"] == reference[1]["best_val_score"]
     assert _score(params, cache, tmp_path / "run") == reference[0]
 
@@ -71,8 +71,8 @@ def test_interrupted_run_resumes_to_the_same_bytes(tmp_path, params_dict, cache,
     params = _params(params_dict)  # num_workers 2, the default
     run = tmp_path / "run"
     with pytest.raises(InterruptedError):
-        train_run(params, "A", MODEL, cache, run, stop_after_epochs=cut_after)
-    resumed = train_run(params, "A", MODEL, cache, run)
+        train_run(params, "A", MODEL, 0, cache, run, stop_after_epochs=cut_after)
+    resumed = train_run(params, "A", MODEL, 0, cache, run)
     assert resumed["final_weights"] == reference[1]["final_weights"]
     assert _score(params, cache, run) == reference[0]
     steps = (run / "live" / "plots" / "metrics" / "val_score.tsv").read_text().splitlines()[1:]
@@ -86,7 +86,7 @@ def test_sigkill_mid_run_resumes_to_the_same_bytes(tmp_path, params_dict, cache,
     _params(params_dict)  # validates and fills the dict the stage will read
     (tmp_path / "params.yaml").write_text(yaml.safe_dump(params_dict))
     run = tmp_path / "run"
-    cmd = [sys.executable, "-m", "pipeline.train", "--dataset", "A", "--model", MODEL,
+    cmd = [sys.executable, "-m", "pipeline.train", "--dataset", "A", "--model", MODEL, "--seed", "0",
            "--params", str(tmp_path / "params.yaml"), "--cache", str(cache), "--out", str(run)]
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root), str(root / "src")])}
     proc = subprocess.Popen(cmd, cwd=root, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -104,13 +104,13 @@ def test_sigkill_mid_run_resumes_to_the_same_bytes(tmp_path, params_dict, cache,
 def test_a_finished_run_of_other_code_is_retrained(tmp_path, params_dict, cache, monkeypatch, caplog):
     """The in-stage shortcut ('already complete') never outlives a change of code."""
     params = _params(params_dict, epochs=1, workers=0)
-    first = train_run(params, "A", MODEL, cache, tmp_path / "run")
-    again = train_run(params, "A", MODEL, cache, tmp_path / "run")
+    first = train_run(params, "A", MODEL, 0, cache, tmp_path / "run")
+    again = train_run(params, "A", MODEL, 0, cache, tmp_path / "run")
     assert again == first  # same code, params and data: the finished run stands
     monkeypatch.setattr(provenance, "source_fingerprint", lambda: "other code")
     monkeypatch.setattr("compact_perception.train.source_fingerprint", lambda: "other code")
     with caplog.at_level("INFO"):
-        rerun = train_run(params, "A", MODEL, cache, tmp_path / "run")
+        rerun = train_run(params, "A", MODEL, 0, cache, tmp_path / "run")
     assert rerun["digest"] != first["digest"]
     assert "of other code, params or data" in caplog.text
 

@@ -28,7 +28,7 @@ def tiny_params(params_dict: dict, epochs: int = 3, batch: int = 2) -> object:
 
 
 def test_plateau_halves_after_patience_and_respects_min():
-    p = Plateau(patience=4, factor=0.5, lr_min=0.02)
+    p = Plateau(patience=4, factor=0.5, lr_min=0.02, rule="paper", threshold=1e-4)
     lr = 0.1
     assert p.step(1.0, lr) == (True, 0.1)
     for _ in range(3):
@@ -39,6 +39,50 @@ def test_plateau_halves_after_patience_and_respects_min():
     for _ in range(8):
         _, lr = p.step(2.0, lr)
     assert lr == 0.02                 # clamped at lr_min
+
+
+@pytest.mark.parametrize("scores", [
+    [1.0] * 14,                                                  # never improves after epoch 1
+    [1.0, 0.9, 0.95, 0.95, 0.95, 0.95, 0.95, 0.8, 0.8, 0.8],     # one halving, then a drop
+    [1.0, 0.99995, 0.9999, 0.99989, 0.5, 0.50001, 0.49999] * 2,  # drops below the 1e-4 threshold
+])
+def test_torch_plateau_rule_is_reduce_lr_on_plateau(scores):
+    """The 'torch' rule against PyTorch's own ReduceLROnPlateau (the authors' scheduler) with
+    patience 4, factor 0.5, threshold 1e-4 (rel), min_lr 1e-5: the same lr after every epoch."""
+    opt = torch.optim.SGD([torch.nn.Parameter(torch.zeros(1))], lr=0.1)
+    ref = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, mode="min", factor=0.5, patience=4, threshold=1e-4,
+                                                     threshold_mode="rel", min_lr=1e-5)
+    p = Plateau(patience=4, factor=0.5, lr_min=1e-5, rule="torch", threshold=1e-4)
+    lr = 0.1
+    for score in scores:
+        ref.step(score)
+        _, lr = p.step(score, lr)
+        assert lr == pytest.approx(opt.param_groups[0]["lr"], rel=0, abs=1e-15)
+
+
+def test_torch_rule_halves_after_the_fifth_bad_epoch_paper_rule_after_the_fourth():
+    for rule, first_halving in (("paper", 5), ("torch", 6)):   # epoch 1 sets the best
+        p, lr = Plateau(patience=4, factor=0.5, lr_min=1e-5, rule=rule, threshold=1e-4), 0.1
+        lrs = []
+        for _ in range(7):
+            _, lr = p.step(1.0, lr)
+            lrs.append(lr)
+        assert lrs.index(0.05) + 1 == first_halving, rule
+
+
+def test_smooth_l1_de_loss_is_torch_smooth_l1_with_beta_half():
+    """``de_loss: smooth_l1`` = torch's smooth_l1_loss(beta=0.5) (the authors' DE loss) = 2 x eq. (2)."""
+    from compact_perception.losses import de_loss_factor, huber_loss, scale_de_loss
+
+    g = torch.Generator().manual_seed(0)
+    pred, target = torch.rand(2, 4, 1, 8, 8, generator=g) * 2, torch.rand(2, 4, 1, 8, 8, generator=g)
+    ours = scale_de_loss({"de": huber_loss(pred, target, delta=0.5)}, de_loss_factor("smooth_l1"))["de"]
+    ref = torch.nn.functional.smooth_l1_loss(pred, target, beta=0.5)
+    assert float(ours) == pytest.approx(float(ref), rel=1e-6)
+    assert de_loss_factor("huber") == 1.0 and de_loss_factor("smooth_l1") == 2.0
+    # eq. (2) by hand at two points: |d| = 0.2 < delta -> 0.5 d^2; |d| = 1.0 -> delta (|d| - delta / 2)
+    assert float(huber_loss(torch.tensor([0.2]), torch.tensor([0.0]))) == pytest.approx(0.02)
+    assert float(huber_loss(torch.tensor([1.0]), torch.tensor([0.0]))) == pytest.approx(0.375)
 
 
 def test_early_stop_after_patience():
@@ -56,12 +100,12 @@ def test_selection_score_is_tm_for_four_tasks():
 def test_interrupted_run_resumes_to_the_same_result(tmp_path, params_dict):
     params = tiny_params(params_dict, epochs=3)
     cache = make_cache(tmp_path / "cache")
-    full = train_run(params, "A", "compact_15l_mgn", cache, tmp_path / "full")
+    full = train_run(params, "A", "compact_15l_mgn", 0, cache, tmp_path / "full")
     with pytest.raises(InterruptedError):
-        train_run(params, "A", "compact_15l_mgn", cache, tmp_path / "cut", stop_after_epochs=1)
+        train_run(params, "A", "compact_15l_mgn", 0, cache, tmp_path / "cut", stop_after_epochs=1)
     assert not (tmp_path / "cut" / "summary.json").exists()
     assert torch.load(tmp_path / "cut" / "last.pt", weights_only=False)["epoch"] == 0
-    resumed = train_run(params, "A", "compact_15l_mgn", cache, tmp_path / "cut")
+    resumed = train_run(params, "A", "compact_15l_mgn", 0, cache, tmp_path / "cut")
     assert resumed["epochs_run"] == full["epochs_run"] == 3
     assert resumed["untrained_val_score"] == pytest.approx(full["untrained_val_score"], abs=1e-9)
     assert 0.0 < full["untrained_val_score"] < 4.0  # TM of the Kaiming-initialised network, recorded once
@@ -73,7 +117,7 @@ def test_interrupted_run_resumes_to_the_same_result(tmp_path, params_dict):
     for name in ("train/loss_de", "train/loss_bevp", "val/iou_ss", "val/mae_de", "lr", "w_de"):
         assert (tmp_path / "cut" / "live" / "plots" / "metrics" / f"{name}.tsv").is_file(), name
     # a completed run with the same configuration is not retrained
-    again = train_run(params, "A", "compact_15l_mgn", cache, tmp_path / "cut")
+    again = train_run(params, "A", "compact_15l_mgn", 0, cache, tmp_path / "cut")
     assert again["train_seconds"] == resumed["train_seconds"]
 
 
@@ -99,7 +143,7 @@ def test_two_process_gloo_matches_one_process(tmp_path, params_dict, root):
     (tmp_path / "params.yaml").write_text(yaml.safe_dump(params_dict))
     cache = make_cache(tmp_path / "cache", counts=(8, 4, 2))
     env = {**os.environ, "PYTHONPATH": str(root), "OMP_NUM_THREADS": "1"}
-    common = ["-m", "pipeline.train", "--dataset", "A", "--model", "compact_15l_mgn",
+    common = ["-m", "pipeline.train", "--dataset", "A", "--model", "compact_15l_mgn", "--seed", "0",
               "--params", str(tmp_path / "params.yaml"), "--cache", str(cache)]
     subprocess.run([sys.executable, *common, "--out", str(tmp_path / "one")], check=True, env=env, cwd=root)
     subprocess.run([sys.executable, "-m", "torch.distributed.run", "--nnodes=1", "--nproc_per_node=2",

@@ -26,7 +26,7 @@ def _train(tmp_path, params_path, cache):
     from pipeline.train import main
 
     with pytest.raises(SystemExit) as exc:
-        main(["--dataset", "A", "--model", "compact_1l", "--params", str(params_path), "--cache", str(cache),
+        main(["--dataset", "A", "--model", "compact_1l", "--seed", "0", "--params", str(params_path), "--cache", str(cache),
               "--out", str(tmp_path / "run")])
     return str(exc.value.code)
 

@@ -21,6 +21,14 @@ from repo_params import section
 
 D = torch.float64
 TASKS = ("de", "ss", "ls", "bevp")
+# Algorithm 1's settings (section IV-D: alpha 1.5, weight lr 0.1 halved on plateau down to 1e-4)
+PLATEAU = {"plateau_patience": 4, "plateau_factor": 0.5, "plateau_rule": "paper"}
+MGN_ARGS = {"alpha": 1.5, "lr": 0.1, "lr_min": 1e-4, **PLATEAU}
+
+
+def make_mgn(model: nn.Module, **kw) -> MGNWeighting:
+    """MGN on ``model``'s shared layers with Algorithm 1's settings, ``kw`` overriding them."""
+    return MGNWeighting(TASKS, model.shared_layers(), **{**MGN_ARGS, **kw})
 
 
 class Tiny(nn.Module):
@@ -100,7 +108,7 @@ def np_mgn_step(w, L0, L, n, alpha, lr, floor_ratio=1e-3):
 def test_mgn_one_update_matches_hand_computation() -> None:
     model = Tiny()
     b0, b1 = make_batch(1), make_batch(2, {"ss": 3.0, "bevp": 0.2})
-    mgn = MGNWeighting(TASKS, model.shared_layers(), alpha=1.5, lr=0.1)
+    mgn = make_mgn(model, alpha=1.5, lr=0.1)
     L0, _ = np_losses_and_norms(model, b0)
     mgn.before_backward(0, 2, task_losses(model, b0), model)
     assert np.allclose(mgn.w.numpy(), 1.0)  # step 0 only records L_i(0)
@@ -122,7 +130,7 @@ def test_mgn_leaves_network_and_grads_untouched_and_graph_alive() -> None:
     for p in model.parameters():
         p.grad = torch.full_like(p, 0.123)
     before = {k: (p.detach().clone(), p.grad.clone()) for k, p in model.named_parameters()}
-    mgn = MGNWeighting(TASKS, model.shared_layers())
+    mgn = make_mgn(model)
     losses = task_losses(model, make_batch(3))
     mgn.before_backward(0, 1, losses, model)  # n_steps == 1: record and update on the same step
     assert mgn.n_updates == 1
@@ -136,7 +144,7 @@ def test_mgn_leaves_network_and_grads_untouched_and_graph_alive() -> None:
 def test_mgn_sum_stays_T_over_epochs_and_total() -> None:
     model = Tiny()
     opt = torch.optim.SGD(model.parameters(), lr=0.05)
-    mgn = MGNWeighting(TASKS, model.shared_layers(), lr=0.5)
+    mgn = make_mgn(model, lr=0.5)
     history = []
     for epoch in range(4):
         for step in range(3):
@@ -160,7 +168,7 @@ def test_mgn_sum_stays_T_over_epochs_and_total() -> None:
 def test_mgn_non_positive_weight_is_floored() -> None:
     model = Tiny()
     b0, b1 = make_batch(1), make_batch(2, {"ss": 3.0, "bevp": 0.2})
-    mgn = MGNWeighting(TASKS, model.shared_layers(), lr=100.0)  # a huge step drives weights negative
+    mgn = make_mgn(model, lr=100.0)  # a huge step drives weights negative
     mgn.before_backward(0, 2, task_losses(model, b0), model)
     L0, _ = np_losses_and_norms(model, b0)
     L1, n1 = np_losses_and_norms(model, b1)
@@ -174,19 +182,19 @@ def test_mgn_non_positive_weight_is_floored() -> None:
 
 
 def test_mgn_plateau_and_state_round_trip() -> None:
-    mgn = MGNWeighting(TASKS, Tiny().shared_layers(), lr=0.1, lr_min=0.03, plateau_patience=2)
+    mgn = make_mgn(Tiny(), lr=0.1, lr_min=0.03, plateau_patience=2)
     for improved, lr in [(False, 0.1), (False, 0.05), (True, 0.05), (False, 0.05), (False, 0.03), (False, 0.03), (False, 0.03)]:
         mgn.on_epoch_end(improved)
         assert mgn.lr == pytest.approx(lr)
     assert mgn.log_values()["lr_w"] == pytest.approx(0.03)
 
     model = Tiny()
-    a = MGNWeighting(TASKS, model.shared_layers(), lr=0.3)
+    a = make_mgn(model, lr=0.3)
     a.before_backward(0, 2, task_losses(model, make_batch(1)), model)
     a.before_backward(1, 2, task_losses(model, make_batch(2, {"ss": 2.0})), model)
     a.on_epoch_end(False)
     a.before_backward(0, 2, task_losses(model, make_batch(5)), model)  # interrupted mid-epoch
-    b = MGNWeighting(TASKS, model.shared_layers())
+    b = make_mgn(model)
     b.load_state_dict(copy.deepcopy(a.state_dict()))
     assert b.state_dict() == a.state_dict()
     last = task_losses(model, make_batch(6, {"bevp": 3.0}))
@@ -199,7 +207,7 @@ def test_authors_mode_changes_network_grads() -> None:
     grads, last = {}, {}
     for mode in (False, True):
         model = Tiny()
-        mgn = MGNWeighting(TASKS, model.shared_layers(), authors_mode=mode)
+        mgn = make_mgn(model, authors_mode=mode)
         b0, b1 = make_batch(1), make_batch(2, {"ss": 3.0, "bevp": 0.2})
         mgn.before_backward(0, 2, task_losses(model, b0), model)
         losses = task_losses(model, b1)
@@ -219,11 +227,27 @@ def test_authors_mode_changes_network_grads() -> None:
     torch.testing.assert_close(last[True]["grad_w"], last[False]["grad_w"] + last[False]["L"], rtol=0, atol=1e-10)
 
 
+def test_authors_mode_update_matches_hand_computation() -> None:
+    """The authors' form (compact_15l_mgn_authors): w <- renorm(w - lr (dL_MGN/dw + L_i)) by hand."""
+    model = Tiny()
+    b0, b1 = make_batch(1), make_batch(2, {"ss": 3.0, "bevp": 0.2})
+    mgn = make_mgn(model, alpha=1.5, lr=0.1, authors_mode=True)
+    L0, _ = np_losses_and_norms(model, b0)
+    mgn.before_backward(0, 2, task_losses(model, b0), model)
+    L1, n1 = np_losses_and_norms(model, b1)
+    mgn.before_backward(1, 2, task_losses(model, b1), model)
+    _, ref = np_mgn_step(np.ones(4), L0, L1, n1, 1.5, 0.1)
+    w_hand = np.maximum(1.0 - 0.1 * (ref["grad"] + L1), 1e-3 * 4)
+    w_hand = w_hand * 4 / w_hand.sum()
+    np.testing.assert_allclose(mgn.last["grad_w"].numpy(), ref["grad"] + L1, atol=1e-6)
+    np.testing.assert_allclose(mgn.w.numpy(), w_hand, atol=1e-6)
+
+
 # ----------------------------------------------------------------------------- GradNorm
 def test_gradnorm_updates_every_step_and_keeps_sum() -> None:
     model = Tiny()
     opt = torch.optim.SGD(model.parameters(), lr=0.05)
-    gn = GradNormWeighting(TASKS, model.shared_layers(), lr=0.05)
+    gn = GradNormWeighting(TASKS, model.shared_layers(), alpha=1.5, lr=0.05, **PLATEAU)
     prev = gn.w.clone()
     first_L0 = None
     for epoch in range(2):
@@ -241,7 +265,7 @@ def test_gradnorm_updates_every_step_and_keeps_sum() -> None:
             opt.step()
         gn.on_epoch_end(False)
     assert gn.n_updates == 6 and gn.log_values()["lr_w"] == pytest.approx(0.05)
-    gn2 = GradNormWeighting(TASKS, model.shared_layers(), lr=0.05)
+    gn2 = GradNormWeighting(TASKS, model.shared_layers(), alpha=1.5, lr=0.05, **PLATEAU)
     gn2.load_state_dict(copy.deepcopy(gn.state_dict()))
     losses = task_losses(model, make_batch(99))
     gn.before_backward(0, 3, losses, model)
@@ -251,7 +275,7 @@ def test_gradnorm_updates_every_step_and_keeps_sum() -> None:
 
 # ----------------------------------------------------------------------------- registry / factory
 def test_registry_and_factory() -> None:
-    assert WEIGHTINGS.keys() == ["gradnorm", "mgn", "none", "static"]
+    assert sorted(WEIGHTINGS.keys()) == ["cagrad", "dwa", "gradnorm", "mgn", "none", "pcgrad", "single", "static", "uw"]
     model = Tiny()
     kinds = {
         "static": (section("train.models.compact_1l", weighting="static"), StaticWeighting),
@@ -260,12 +284,12 @@ def test_registry_and_factory() -> None:
         "gradnorm": (section("train.models.gradnorm_segnet", lr=1e-3), GradNormWeighting),
     }
     for key, (recipe, cls) in kinds.items():
-        w = build_weighting(recipe, TASKS, model, plateau_patience=3)
+        w = build_weighting(recipe, TASKS, model, plateau_patience=3, plateau_factor=0.5)
         assert type(w) is cls and w.plateau_patience == 3
         assert w.log_values()["w_de"] == 1.0
         losses = task_losses(model, make_batch(0))
         w.before_backward(0, 1, losses, model)
         assert float(w.w.sum()) == pytest.approx(4.0)
-    assert build_weighting(kinds["mgn"][0], TASKS, model).lr == pytest.approx(0.1)
+    assert build_weighting(kinds["mgn"][0], TASKS, model, plateau_patience=4, plateau_factor=0.5).lr == pytest.approx(0.1)
     with pytest.raises(KeyError):
-        StaticWeighting(TASKS).total({"de": torch.tensor(1.0)})
+        StaticWeighting(TASKS, plateau_patience=4, plateau_factor=0.5).total({"de": torch.tensor(1.0)})

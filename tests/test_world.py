@@ -188,6 +188,7 @@ def test_all_classes_appear_over_towns(params_dict):
 
 def _tiny(d: dict, workers: int = 1):
     d["datasets"]["A"]["frames"] = {"default": 10, "paper": 2000}
+    d["datasets"]["A"]["split_ratio"]["default"] = {"train": 3, "val": 1, "test": 1}
     d["world"]["frames_per_episode"] = 2
     return _params(d, res=32, samples=128, workers=workers)
 
@@ -277,6 +278,10 @@ def test_plan_c_splits_by_episode(params_dict):
     p = parse_params(params_dict)
     plan = gen.plan_episodes(p, "C")
     n = {s: sum(e["frames"] for e in plan if e["split"] == s) for s in ("train", "val", "test")}
-    assert n == {"train": 120, "val": 40, "test": 40}
+    assert n == {"train": 60, "val": 40, "test": 100}   # split_ratio 3:2:5 (the default scale's)
+    params_dict["datasets"]["C"]["split_ratio"]["default"] = {"train": 3, "val": 1, "test": 1}
+    plan = gen.plan_episodes(parse_params(params_dict), "C")
+    n = {s: sum(e["frames"] for e in plan if e["split"] == s) for s in ("train", "val", "test")}
+    assert n == {"train": 120, "val": 40, "test": 40}   # the paper's 3:1:1
     assert len({e["index"] for e in plan}) == len(plan) and len({e["seed"] for e in plan}) == len(plan)
     assert {e["town"] for e in plan if e["split"] == "train"} == {f"town0{k}" for k in range(1, 6)}

@@ -21,11 +21,12 @@ from typing import Generic, Literal, Optional, TypeVar
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+
 T = TypeVar("T")
 
 TOWNS = ("town01", "town02", "town03", "town04", "town05")
-DATASET_IDS = ("A", "B", "C", "nuscenes")
-MODEL_IDS = ("compact_1l", "compact_15l", "compact_15l_mgn", "gradnorm_segnet", "polarnet", "chen_bev")
+# Model and dataset ids live in the registries (compact_perception.catalog), which this module does
+# not import: the data stages read params too, and a new model must not rerun them.
 ScaleName = Literal["default", "paper"]
 
 
@@ -130,14 +131,31 @@ class AuthorsSplits(Strict):
         return v
 
 
+class SplitRatio(Strict):
+    """Integer shares of the train / val / test splits (the paper's Table I: 3:1:1)."""
+
+    train: int = Field(ge=1)
+    val: int = Field(ge=1)
+    test: int = Field(ge=1)
+
+    def counts(self, frames: int) -> dict[str, int]:
+        """Frames per split: floor shares for train and val, the rest to test."""
+        total = self.train + self.val + self.test
+        n = {"train": frames * self.train // total, "val": frames * self.val // total}
+        n["test"] = frames - n["train"] - n["val"]
+        return n
+
+
 class SimDatasetParams(Strict):
-    """A simulated dataset (A, B, C): town splits of paper Table I, ratio 3:1:1."""
+    """A simulated dataset (A, B, C): town splits of paper Table I."""
 
     source: Literal["sim", "authors"]
     authors_root: Optional[str] = Field(description="root of the authors' released dataset (source: authors); null otherwise")
     authors_splits: AuthorsSplits = Field(description="split folders used with source: authors (paper: "
                                           "A Tr1/Va2/Te2, B Tr2/Va1/Te1, C Tr12345/Va12345/Te12345)")
     frames: Scaled[int]
+    split_ratio: Scaled[SplitRatio] = Field(description="train:val:test shares (paper 3:1:1); the default scale "
+                                            "gives the test split more frames, so frame sampling is not the main noise")
     train_towns: list[str]
     eval_towns: list[str]
     split_by: Literal["town", "episode"]
@@ -158,7 +176,7 @@ class SimDatasetParams(Strict):
     def _frames(cls, v: Scaled[int]) -> Scaled[int]:
         for name in ("default", "paper"):
             if getattr(v, name) < 5:
-                raise ValueError(f"frames.{name} must be at least 5 (one per split share of 3:1:1), got {getattr(v, name)}")
+                raise ValueError(f"frames.{name} must be at least 5 (at least one per split), got {getattr(v, name)}")
         return v
 
     @model_validator(mode="after")
@@ -232,7 +250,23 @@ class GradNormParams(Strict):
 
 
 class ModelRecipe(Strict):
+    """One model's training recipe (``train.models.<id>``). ``weighting`` names a loss weighting of
+    the registry (``compact_perception.weighting.WEIGHTINGS``); its settings sit in a section of
+    the same name (``mgn: {...}``), checked against that method's own schema when the run starts
+    (MGN's and GradNorm's here already). Only the named method's section is allowed."""
+
+    model_config = ConfigDict(extra="allow", frozen=True, strict=True)
+
     optimizer: Literal["sgd", "adam"]
+    de_loss: Optional[Literal["huber", "smooth_l1"]] = Field(
+        None, description="compact models' DE loss: 'huber' = eq. (2) with delta 0.5 (the paper), 'smooth_l1' = "
+                          "torch's smooth_l1_loss(beta=0.5) = eq. (2) / delta (the authors' code); required for "
+                          "the compact models, not allowed for the baselines (their own losses)")
+    plateau_rule: Literal["paper", "torch"] = Field(
+        description="lr halving on a validation-TM plateau (main lr and MGN's weight lr): 'paper' = after "
+                    "train.plateau_patience epochs without a drop (section IV-D); 'torch' = PyTorch's "
+                    "ReduceLROnPlateau as in the authors' code: after more than plateau_patience epochs without a "
+                    "relative drop of train.plateau_threshold")
     lr: float = Field(gt=0.0)
     lr_min: float = Field(gt=0.0)
     momentum: Optional[float] = Field(None, ge=0.0, lt=1.0, description="SGD momentum: required with sgd, "
@@ -241,7 +275,7 @@ class ModelRecipe(Strict):
                                          "not allowed with sgd")
     eps: Optional[float] = Field(None, gt=0.0, description="Adam's epsilon: required with adam, not allowed with sgd")
     weight_decay: float = Field(ge=0.0)
-    weighting: Literal["static", "mgn", "gradnorm", "none"]
+    weighting: str = Field(min_length=1, description="a loss weighting id (weighting.WEIGHTINGS)")
     max_epochs: Optional[Scaled[int]] = Field(None, description="overrides train.max_epochs for this model")
     mgn: Optional[MgnParams] = None
     gradnorm: Optional[GradNormParams] = None
@@ -269,7 +303,24 @@ class ModelRecipe(Strict):
             raise ValueError("weighting 'mgn' needs an 'mgn' section")
         if self.weighting == "gradnorm" and self.gradnorm is None:
             raise ValueError("weighting 'gradnorm' needs a 'gradnorm' section")
+        for key in ("mgn", "gradnorm"):
+            if getattr(self, key) is not None and self.weighting != key:
+                raise ValueError(f"{key}: a section for weighting {key!r}, but the recipe's weighting is "
+                                 f"{self.weighting!r}; remove it")
+        for key, value in (self.model_extra or {}).items():
+            if key != self.weighting:
+                raise ValueError(f"{key}: unknown key (not in the schema, and not the section of this recipe's "
+                                 f"weighting {self.weighting!r})")
+            if not isinstance(value, dict):
+                raise ValueError(f"{key}: expected a mapping of the {key!r} weighting's settings, got {value!r}")
         return self
+
+    def section(self, name: str) -> dict:
+        """The settings section ``name`` (the weighting's own params), ``{}`` when absent."""
+        typed = getattr(self, name, None) if name in ("mgn", "gradnorm") else None
+        if typed is not None:
+            return typed.model_dump()
+        return dict((self.model_extra or {}).get(name) or {})
 
 
 class TrainParams(Strict):
@@ -279,6 +330,8 @@ class TrainParams(Strict):
     max_epochs: Scaled[int]
     plateau_patience: int = Field(ge=1)
     plateau_factor: float = Field(gt=0.0, lt=1.0)
+    plateau_threshold: float = Field(ge=0.0, lt=1.0, description="relative improvement the 'torch' plateau "
+                                     "rule requires (ReduceLROnPlateau's threshold, mode 'rel')")
     early_stop_patience: int = Field(ge=1)
     num_workers: int = Field(2, ge=0, description="loader processes: any count gives the same result")
     num_threads: int = Field(ge=1, le=256, description="torch intra-op threads: a threaded reduction's "
@@ -296,13 +349,39 @@ class TrainParams(Strict):
     def _epochs(cls, v: Scaled[int]) -> Scaled[int]:
         return _scaled_at_least(v, 1)
 
-    @field_validator("models")
+
+
+class StudyParams(Strict):
+    """The loss-balancing study (beyond the paper): the compact 15L network trained with each
+    weighting method ("arm") on ``datasets`` at every seed of ``seeds``. An arm is the base model's
+    recipe with its ``weighting`` (and that method's section) replaced by the arm's. The arms
+    "static", "mgn" and "mgn_authors" are not retrained here: they are the runs of
+    compact_15l, compact_15l_mgn and compact_15l_mgn_authors."""
+
+    datasets: Scaled[list[str]]
+    base_model: Literal["compact_15l"] = Field(description="the network and recipe every arm shares")
+    arm_ids: list[str] = Field(min_length=1, description="the arms trained by the study stage (its DVC matrix)")
+    arms: dict[str, dict] = Field(description="arm id -> {weighting: <id>, <id>: {settings}}")
+
+    @field_validator("datasets")
     @classmethod
-    def _models(cls, v: dict[str, ModelRecipe]) -> dict[str, ModelRecipe]:
-        bad = [m for m in v if m not in MODEL_IDS]
-        if bad:
-            raise ValueError(f"unknown model id(s) {bad}; known: {list(MODEL_IDS)}")
+    def _datasets(cls, v: Scaled[list[str]]) -> Scaled[list[str]]:
+        for name in ("default", "paper"):
+            ds = getattr(v, name)
+            known = list(DatasetsParams.model_fields)
+            bad = [d for d in ds if d not in known]
+            if not ds or bad:
+                raise ValueError(f"{name}: expected a non-empty list of {known}, got {ds}")
         return v
+
+    @model_validator(mode="after")
+    def _arms(self) -> "StudyParams":
+        if sorted(self.arm_ids) != sorted(self.arms) or len(set(self.arm_ids)) != len(self.arm_ids):
+            raise ValueError(f"arm_ids {self.arm_ids} must list each key of arms {sorted(self.arms)} once")
+        for arm, spec in self.arms.items():
+            if not isinstance(spec.get("weighting"), str) or set(spec) - {"weighting", spec["weighting"]}:
+                raise ValueError(f"arms.{arm}: expected {{weighting: <id>, <id>: {{settings}}}}, got {spec}")
+        return self
 
 
 class EvalParams(Strict):
@@ -318,10 +397,41 @@ class BenchmarkParams(Strict):
 class Params(Strict):
     scale: ScaleName
     seed: int = Field(ge=0)
+    seeds: list[int] = Field(min_length=1, description="training seeds of the compact models: each (dataset, "
+                             "model) is trained once per seed (the DVC matrix); runs/<ds>/<model>/seed<k>")
+    baseline_seeds: list[int] = Field(min_length=1, description="training seeds of the baselines (fewer at the "
+                                      "default scale: a GradNorm SegNet run costs ~4 compact runs)")
+
+    @field_validator("seeds", "baseline_seeds")
+    @classmethod
+    def _seeds(cls, v: list[int]) -> list[int]:
+        if any(k < 0 for k in v) or len(set(v)) != len(v):
+            raise ValueError(f"expected distinct non-negative integers, got {v}")
+        return v
+
+    def study_recipe(self, arm: str) -> ModelRecipe:
+        """The recipe of study arm ``arm``: ``study.base_model``'s recipe with the arm's weighting."""
+        if arm not in self.study.arms:
+            raise ParamsError(f"study.arms: no arm {arm!r}; known: {sorted(self.study.arms)}")
+        base = self.train.models[self.study.base_model].model_dump(exclude_none=True)
+        for key in ("mgn", "gradnorm", *(self.train.models[self.study.base_model].model_extra or {})):
+            base.pop(key, None)
+        try:
+            return ModelRecipe.model_validate({**base, **self.study.arms[arm]})
+        except ValidationError as err:
+            raise ParamsError(_format(err, f"params.yaml: study.arms.{arm}")) from None
+
+    def seeds_of(self, group: str) -> list[int]:
+        """The training seeds of a model group (``catalog.ModelInfo.group``): ``seeds`` for
+        ``compact``, ``baseline_seeds`` for ``baseline``."""
+        if group not in ("compact", "baseline"):
+            raise ValueError(f"unknown model group {group!r}; known: compact, baseline")
+        return list(self.seeds if group == "compact" else self.baseline_seeds)
     world: WorldParams
     datasets: DatasetsParams
     preprocess: PreprocessParams
     train: TrainParams
+    study: StudyParams
     evaluate: EvalParams
     benchmark: BenchmarkParams
 

@@ -23,6 +23,10 @@ outside what the project promises.
 from __future__ import annotations
 
 import os
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import torch
 
 #: numpy 1.26's dispatchable AVX-512 targets (``numpy.core._multiarray_umath.__cpu_dispatch__``).
 NUMPY_AVX512 = ("AVX512F", "AVX512CD", "AVX512_KNL", "AVX512_KNM", "AVX512_SKX", "AVX512_CLX",
@@ -87,3 +91,14 @@ def set_threads(n: int) -> None:
 def pins_in_effect() -> dict[str, str]:
     """The pinned variables whose current value differs from :data:`PINNED_ENV` (empty = pinned)."""
     return {k: os.environ.get(k, "<unset>") for k, v in PINNED_ENV.items() if os.environ.get(k) != v}
+
+
+def resolve_device(pref: str) -> "torch.device":
+    """``train.device``: ``cuda`` (an error without one), ``cpu``, or ``auto`` (CUDA when present)."""
+    import torch
+
+    if pref == "cuda" or (pref == "auto" and torch.cuda.is_available()):
+        if not torch.cuda.is_available():
+            raise RuntimeError("train.device is 'cuda' but no CUDA device is available")
+        return torch.device("cuda")
+    return torch.device("cpu")

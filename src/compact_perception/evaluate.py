@@ -24,17 +24,16 @@ import pandas as pd
 import torch
 from tqdm.auto import tqdm
 
-from . import io
+from . import catalog, io
 from .data import make_loader, to_device
-from .determinism import set_threads
+from .determinism import resolve_device, set_threads
 from .metrics import (MV_DEFINITION, class_confusion, class_iou, compute_metrics, depth_errors_per_sample,
                       mean_iou, multilabel_confusion, scores_from_means, total_metric)
 from .models import build_model
-from .train import resolve_device
 
 log = logging.getLogger(__name__)
 
-TASK_METRIC = {"de": "mae_de", "ss": "iou_ss", "ls": "iou_ls", "bevp": "iou_bevp"}
+TASK_METRIC = {t: catalog.metric_of(t) for t in catalog.task_ids()}  # de -> mae_de, ... (the registry)
 SOURCE_LABEL = {
     "sim": "simulated (embedded world)",
     "authors": "authors' CARLA dataset",
@@ -43,7 +42,7 @@ SOURCE_LABEL = {
 }
 
 
-SCORE_COLUMNS: tuple[str, ...] = ("mae_de", "iou_ss", "iou_ls", "iou_bevp")
+SCORE_COLUMNS: tuple[str, ...] = catalog.metric_keys()
 DEPTH_COLUMNS: tuple[str, ...] = ("abs_rel", "rmse_m", "delta_1.25")
 CLASS_IOU_DEFINITION = (
     "per-class IoU = TP / (TP + FP + FN) from counts summed over all test frames; SS and LS: predicted class = "

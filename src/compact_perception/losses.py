@@ -5,6 +5,9 @@ tasks (B, C, H, W) (treated as V = 1). Every function returns a scalar tensor th
 keeps the autograd graph.
 
 - :func:`huber_loss`     eq. (1)-(2), the DE loss (delta = 0.5).
+- :func:`de_loss_factor` / :func:`scale_de_loss`: the DE loss form of a recipe (``de_loss``):
+  ``huber`` = eq. (2); ``smooth_l1`` = torch's ``smooth_l1_loss(beta=delta)`` = eq. (2) / delta,
+  what the authors' code trains with (twice eq. (2) at delta 0.5).
 - :func:`bce_dice_loss`  eq. (3), the SS / LS / BEVP loss. The paper writes the BCE term
   without its minus sign; we use the standard, positive BCE
   ``-(y log p + (1-y) log(1-p))`` (the printed form would be maximised by training).
@@ -19,6 +22,8 @@ import torch.nn.functional as F
 
 __all__ = [
     "huber_loss",
+    "de_loss_factor",
+    "scale_de_loss",
     "bce_dice_loss",
     "cross_entropy_onehot",
     "lovasz_softmax",
@@ -55,6 +60,27 @@ def huber_loss(pred: Tensor, target: Tensor, delta: float = 0.5) -> Tensor:
     a = d.abs()
     z = torch.where(a < delta, 0.5 * d * d, delta * (a - 0.5 * delta))
     return z.mean()
+
+
+#: DE loss forms (``ModelRecipe.de_loss``) -> the factor on eq. (2)'s Huber loss at delta = 0.5
+DE_LOSS_FORMS: dict[str, float] = {"huber": 1.0, "smooth_l1": 1.0 / 0.5}
+
+
+def de_loss_factor(form: str) -> float:
+    """Factor turning :func:`huber_loss` (delta 0.5) into the DE loss ``form``: 1 for ``huber``
+    (eq. 2), 1 / delta = 2 for ``smooth_l1`` (torch's ``smooth_l1_loss(beta=0.5)``: ``0.5 d^2 / beta``
+    below beta, ``|d| - 0.5 beta`` above, i.e. eq. (2) divided by delta)."""
+    try:
+        return DE_LOSS_FORMS[form]
+    except KeyError:
+        raise ValueError(f"unknown DE loss form {form!r}; known: {sorted(DE_LOSS_FORMS)}") from None
+
+
+def scale_de_loss(losses: dict[str, Tensor], factor: float) -> dict[str, Tensor]:
+    """``losses`` with the ``de`` entry multiplied by ``factor`` (no copy of the graph at 1.0)."""
+    if factor == 1.0 or "de" not in losses:
+        return losses
+    return {**losses, "de": losses["de"] * factor}
 
 
 def bce_dice_loss(pred: Tensor, target: Tensor, eps: float = 1e-7) -> Tensor:

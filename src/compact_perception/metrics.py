@@ -36,6 +36,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from . import catalog
 from .losses import as_views
 
 __all__ = [
@@ -122,7 +123,7 @@ def metric_variance(mae_de: Number, iou_ss: Number, iou_ls: Number, iou_bevp: Nu
 #: How the project's metrics.json labels MV (paper eq. 7 applied to the test-set means).
 MV_DEFINITION = "population variance of the four test-set mean terms (paper eq. 7)"
 #: The per-frame scores that enter TM / MV (eq. 6, 7), in this order.
-SCORE_TERMS: tuple[str, ...] = ("mae_de", "iou_ss", "iou_ls", "iou_bevp")
+SCORE_TERMS: tuple[str, ...] = catalog.metric_keys()
 
 
 def scores_from_means(means: Mapping[str, float]) -> dict[str, float]:

@@ -9,8 +9,10 @@ T = TypeVar("T")
 class Registry(Generic[T]):
     """Maps ids (as written in params.yaml) to factories; unknown ids are clear errors."""
 
-    def __init__(self, kind: str) -> None:
+    def __init__(self, kind: str, *, ordered: bool = False) -> None:
+        """``ordered``: iterate in registration order (a table's row order), else sorted by id."""
         self.kind = kind
+        self.ordered = ordered
         self._items: dict[str, T] = {}
 
     def register(self, key: str) -> Callable[[T], T]:
@@ -26,14 +28,17 @@ class Registry(Generic[T]):
         try:
             return self._items[key]
         except KeyError:
-            known = ", ".join(sorted(self._items))
+            known = ", ".join(self.keys())
             raise KeyError(f"unknown {self.kind} {key!r}; known: {known}") from None
 
     def __contains__(self, key: object) -> bool:
         return key in self._items
 
     def __iter__(self) -> Iterator[str]:
-        return iter(sorted(self._items))
+        return iter(self.keys())
+
+    def __len__(self) -> int:
+        return len(self._items)
 
     def keys(self) -> list[str]:
-        return sorted(self._items)
+        return list(self._items) if self.ordered else sorted(self._items)

@@ -24,7 +24,6 @@ import math
 import random
 import time
 import zlib
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -34,9 +33,12 @@ from tqdm.auto import tqdm
 
 from . import distributed as ddp
 from . import io
-from .config import Params
-from .determinism import release_torch_pins, set_threads
+from . import catalog
+from .config import ModelRecipe, Params
+from .determinism import release_torch_pins, resolve_device, set_threads
+from .errors import RunError
 from .data import make_loader, set_epoch, to_device
+from .losses import de_loss_factor, scale_de_loss
 from .metrics import compute_metrics, scores_from_means, total_metric_partial
 from .models import build_model
 from .precision import (autocast_context, batch_to_channels_last, float_outputs, make_grad_scaler, maybe_compile,
@@ -48,8 +50,6 @@ from .weighting import build_weighting
 log = logging.getLogger(__name__)
 
 
-class RunError(RuntimeError):
-    """A run cannot start or cannot save (bad input, a full disk); the message names the file or key."""
 
 def selection_score(metrics: dict[str, float]) -> float:
     """Validation score used for the schedule, early stopping and the best checkpoint.
@@ -66,17 +66,15 @@ def _split_scores(means: dict[str, float]) -> dict[str, float]:
     return {**means, **scores_from_means(means)}
 
 
-def resolve_device(pref: str) -> torch.device:
-    if pref == "cuda" or (pref == "auto" and torch.cuda.is_available()):
-        if not torch.cuda.is_available():
-            raise RuntimeError("train.device is 'cuda' but no CUDA device is available")
-        return torch.device("cuda")
-    return torch.device("cpu")
-
-
-def run_seed(params: Params, dataset_id: str, model_id: str) -> int:
-    """Seed of one run, derived from ``params.seed`` and the run's ids (stable across runs)."""
-    return (params.seed * 1_000_003 + zlib.crc32(f"{dataset_id}/{model_id}".encode())) % (2**31)
+def run_seed(params: Params, dataset_id: str, seed: int) -> int:
+    """RNG seed of one run, derived from ``params.seed``, the dataset and the run's training seed
+    ``seed`` (one of ``params.seeds``; not read here, so adding a seed reruns no other run). It
+    does not depend on the model: at one seed every model of the same network starts from the same
+    initial weights and sees the same batches (common random numbers), so the paired comparisons
+    of the claims and the study compare training methods, not initialisations."""
+    if seed < 0:
+        raise RunError(f"seed: expected a non-negative training seed, got {seed}")
+    return (params.seed * 1_000_003 + zlib.crc32(f"{dataset_id}/seed{seed}".encode())) % (2**31)
 
 
 def seed_everything(seed: int) -> None:
@@ -97,7 +95,7 @@ def cache_fingerprint(cache_dir: Path) -> str:
 
 
 def run_digest(params: Params, dataset_id: str, model_id: str, seed: int, cache_hash: str,
-               world_size: int) -> str:
+               world_size: int, recipe: ModelRecipe | None = None) -> str:
     """Digest of everything that decides a run's result; it gates resuming and skipping.
 
     It covers the source code (:func:`~compact_perception.provenance.source_fingerprint`),
@@ -109,7 +107,8 @@ def run_digest(params: Params, dataset_id: str, model_id: str, seed: int, cache_
     blob = json.dumps({
         "code": source_fingerprint(), "torch": torch.__version__, "scale": params.scale,
         "dataset": dataset_id, "model": model_id, "seed": seed, "train": train,
-        "recipe": params.train.models[model_id].model_dump(), "data": cache_hash, "world_size": world_size,
+        "recipe": (recipe or params.train.models[model_id]).model_dump(), "data": cache_hash,
+        "world_size": world_size,
     }, sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
@@ -143,15 +142,17 @@ class _Mean:
         return {k: v / max(self.n, 1e-12) for k, v in self.sums.items()}
 
 
-def evaluate_split(model: torch.nn.Module, loader, device: torch.device, spec: dict, dtype: torch.dtype) -> dict[str, float]:
-    """Mean per-frame metrics (and losses) of ``model`` over a loader, in eval mode."""
+def evaluate_split(model: torch.nn.Module, loader, device: torch.device, spec: dict, dtype: torch.dtype,
+                   de_factor: float = 1.0) -> dict[str, float]:
+    """Mean per-frame metrics (and losses, the DE loss times ``de_factor``) of ``model`` over a
+    loader, in eval mode."""
     model.eval()
     acc = _Mean()
     with torch.no_grad():
         for batch in loader:
             batch = to_device(batch, device, spec["num_seg_classes"], dtype=dtype)
             out = model(batch)
-            losses = model.compute_losses(out, batch)
+            losses = scale_de_loss(model.compute_losses(out, batch), de_factor)
             n = next(iter(batch.values())).shape[0]
             values = {f"loss_{k}": v.item() for k, v in losses.items()}
             values.update({k: float(v) for k, v in compute_metrics(out, batch).items()})
@@ -206,10 +207,22 @@ def _export_best(model: torch.nn.Module, best_path: Path, onnx_path: Path, loade
     return {"file": onnx_path.name, "max_abs_diff": float(report["max_abs_diff_all"])}
 
 
-def _check_inputs(params: Params, model_id: str, cache_dir: Path, per_rank_batch: int) -> dict:
-    """Everything a run needs, checked before anything is written; returns the cache meta."""
+def _check_inputs(params: Params, model_id: str, recipe: ModelRecipe, where: str, cache_dir: Path,
+                  per_rank_batch: int) -> dict:
+    """Everything a run needs, checked before anything is written; returns the cache meta.
+    ``where``: the params key of ``recipe`` (for the messages)."""
     from .cache import CacheError, read_meta, read_split
+    from .weighting import WEIGHTINGS
 
+    compact = catalog.MODELS[model_id].group == "compact"
+    if compact and recipe.de_loss is None:
+        raise RunError(f"{where}.de_loss: required for a compact model (huber or smooth_l1)")
+    if not compact and recipe.de_loss is not None:
+        raise RunError(f"{where}.de_loss: only the compact models take it (a baseline keeps its own losses); "
+                       "remove the key")
+    if recipe.weighting not in WEIGHTINGS:
+        raise RunError(f"{where}.weighting: unknown loss weighting {recipe.weighting!r}; known: "
+                       f"{', '.join(WEIGHTINGS.keys())}")
     meta = read_meta(cache_dir)
     n_train = len(read_split(cache_dir, "train", meta).frame_ids)
     n_val = len(read_split(cache_dir, "val", meta).frame_ids)
@@ -225,13 +238,18 @@ def train_run(
     params: Params,
     dataset_id: str,
     model_id: str,
+    seed: int,
     cache_dir: Path,
     out_dir: Path,
     *,
+    recipe: ModelRecipe | None = None,
+    recipe_key: str | None = None,
     stop_after_epochs: int | None = None,
     dtype: torch.dtype = torch.float32,
 ) -> dict:
-    """Train ``model_id`` on ``dataset_id`` from ``cache_dir`` into ``out_dir``.
+    """Train ``model_id`` on ``dataset_id`` with training seed ``seed`` (one of ``params.seeds``)
+    from ``cache_dir`` into ``out_dir``. ``recipe`` (default ``train.models.<model_id>``) and
+    ``recipe_key``, its params key for messages, let the study train one network with other recipes.
 
     ``stop_after_epochs`` ends the process after that many epochs of this call without
     writing the summary (it simulates an interruption, for tests). A failure to write a
@@ -240,7 +258,9 @@ def train_run(
     """
     cache_dir, out_dir = Path(cache_dir), Path(out_dir)
     tp = params.train
-    recipe = tp.models[model_id]
+    if recipe is None:
+        recipe, recipe_key = tp.models[model_id], f"train.models.{model_id}"
+    recipe_key = recipe_key or f"train.models.{model_id}"
     if tp.precision != "fp32":  # mixed precision wants the CPU's own (bf16/AMX) kernels: no pins, no bit promise
         release_torch_pins()
     device = resolve_device(tp.device)
@@ -248,13 +268,14 @@ def train_run(
     if dist_.enabled and device.type == "cuda":
         device = torch.device("cuda", dist_.local_rank)
     per_rank_batch = max(1, tp.batch_size // dist_.world_size)
-    meta = _check_inputs(params, model_id, cache_dir, per_rank_batch)
+    meta = _check_inputs(params, model_id, recipe, recipe_key, cache_dir, per_rank_batch)
     set_threads(tp.num_threads)
-    seed = run_seed(params, dataset_id, model_id)
-    digest = run_digest(params, dataset_id, model_id, seed, cache_fingerprint(cache_dir), dist_.world_size)
+    rng_seed = run_seed(params, dataset_id, seed)
+    digest = run_digest(params, dataset_id, model_id, rng_seed, cache_fingerprint(cache_dir), dist_.world_size,
+                        recipe)
     last_path, best_path, summary_path = out_dir / "last.pt", out_dir / "best.pt", out_dir / "summary.json"
     try:
-        return _train(params, dataset_id, model_id, cache_dir, out_dir, meta, device, dist_, seed, digest,
+        return _train(params, dataset_id, model_id, recipe, cache_dir, out_dir, meta, device, dist_, rng_seed, digest,
                       per_rank_batch, stop_after_epochs, dtype)
     except InterruptedError:  # stop_after_epochs (an OSError subclass): not a write failure
         raise
@@ -269,13 +290,13 @@ def train_run(
         raise RunError(f"{where}: could not write the run ({err.strerror or err})") from None
 
 
-def _train(params: Params, dataset_id: str, model_id: str, cache_dir: Path, out_dir: Path, meta: dict,
+def _train(params: Params, dataset_id: str, model_id: str, recipe: ModelRecipe, cache_dir: Path, out_dir: Path,
+           meta: dict,
            device: torch.device, dist_, seed: int, digest: str, per_rank_batch: int,
            stop_after_epochs: int | None, dtype: torch.dtype) -> dict:
     from dvclive import Live
 
     tp = params.train
-    recipe = tp.models[model_id]
     seed_everything(seed)
     torch.use_deterministic_algorithms(True, warn_only=True)
     spec = {"num_seg_classes": len(meta["seg_classes"])}
@@ -287,7 +308,9 @@ def _train(params: Params, dataset_id: str, model_id: str, cache_dir: Path, out_
                                 plateau_factor=tp.plateau_factor)
     optimizer = make_optimizer(recipe, model.parameters())
     max_epochs = (recipe.max_epochs or tp.max_epochs).at(params.scale)
-    plateau = Plateau(tp.plateau_patience, tp.plateau_factor, recipe.lr_min)
+    plateau = Plateau(tp.plateau_patience, tp.plateau_factor, recipe.lr_min, recipe.plateau_rule,
+                      tp.plateau_threshold)
+    de_factor = de_loss_factor(recipe.de_loss) if recipe.de_loss is not None else 1.0
     stopper = EarlyStop(tp.early_stop_patience)
     prec = resolve_precision(tp.precision, device)
     scaler = make_grad_scaler(device, prec)
@@ -335,7 +358,8 @@ def _train(params: Params, dataset_id: str, model_id: str, cache_dir: Path, out_
                              num_workers=tp.num_workers, drop_last=False, distributed=dist_.enabled)
     if untrained_score is None:  # the reference that training must beat (Kaiming-initialised network)
         untrained_score = selection_score(
-            ddp.average_scalars(evaluate_split(model, val_loader, device, spec, dtype), dist_, len(val_loader)))
+            ddp.average_scalars(evaluate_split(model, val_loader, device, spec, dtype, de_factor), dist_,
+                                len(val_loader)))
         log.info("%s/%s untrained val score %.4f", dataset_id, model_id, untrained_score)
     train_loader = make_loader(cache_dir, "train", lidar_channels, per_rank_batch, shuffle=True, seed=seed,
                                num_workers=tp.num_workers, drop_last=True, distributed=dist_.enabled)
@@ -366,7 +390,7 @@ def _train(params: Params, dataset_id: str, model_id: str, cache_dir: Path, out_
                 batch = batch_to_channels_last(batch)
             with autocast_context(device, prec):  # the forward only: losses in float32 (BCE clamps)
                 out = float_outputs(fwd(batch))
-            losses = model.compute_losses(out, batch)
+            losses = scale_de_loss(model.compute_losses(out, batch), de_factor)
             weighting.grad_scale = scaler.get_scale() if scaler.is_enabled() else 1.0
             weighting.before_backward(step, n_steps, losses, model)
             if dist_.enabled:  # each rank's update saw its own batch: agree on the mean weights
@@ -385,12 +409,13 @@ def _train(params: Params, dataset_id: str, model_id: str, cache_dir: Path, out_
             bar.update()
         bar.close()
         train_m = _split_scores(ddp.average_scalars(acc.mean(), dist_, acc.n))
-        val_m = _split_scores(
-            ddp.average_scalars(evaluate_split(model, val_loader, device, spec, dtype), dist_, len(val_loader)))
+        val_m = _split_scores(ddp.average_scalars(
+            evaluate_split(model, val_loader, device, spec, dtype, de_factor), dist_, len(val_loader)))
         score = selection_score(val_m)
-        improved, lr = plateau.step(score, lr)
-        weighting.on_epoch_end(improved)
+        plateau_improved, lr = plateau.step(score, lr)
+        weighting.on_epoch_end(plateau_improved)
         stop = stopper.step(score)
+        improved = score < best_score  # the best checkpoint: any drop (both plateau rules)
         if improved:
             best_score, best_epoch = score, epoch
         record = {"epoch": epoch, "lr": optimizer.param_groups[0]["lr"], "val_score": score,
@@ -423,7 +448,7 @@ def _train(params: Params, dataset_id: str, model_id: str, cache_dir: Path, out_
             raise InterruptedError(f"stopped after epoch {epoch + 1} (stop_after_epochs)")
 
     summary = {
-        "dataset": dataset_id, "model": model_id, "best_epoch": best_epoch, "best_val_score": best_score,
+        "dataset": dataset_id, "model": model_id, "rng_seed": seed, "best_epoch": best_epoch, "best_val_score": best_score,
         "untrained_val_score": untrained_score,
         "epochs_run": len(history), "max_epochs": max_epochs, "stopped_early": stop,
         "train_seconds": round(elapsed_before + time.perf_counter() - t_start, 2),
@@ -431,7 +456,7 @@ def _train(params: Params, dataset_id: str, model_id: str, cache_dir: Path, out_
         "final_weights": {k: v for k, v in (history[-1] if history else {}).items() if k.startswith("w_")},
         "digest": digest,
     }
-    if dist_.is_main and model_id.startswith("compact"):  # the deployable network, beside its checkpoint
+    if dist_.is_main and catalog.MODELS[model_id].group == "compact":  # the deployable network, beside its checkpoint
         summary["onnx"] = _export_best(model, best_path, out_dir / "model.onnx", val_loader, device, spec)
     if dist_.is_main:
         live.end()

@@ -1,8 +1,15 @@
-"""Reports (SPEC 8): Table II / III, paper-vs-reproduced table, figures, ``reports/index.md``.
+"""Reports (SPEC 8): Table II / III, paper-vs-reproduced table, claims scorecard, figures, the
+plots' CSV files, the headline metrics and ``reports/index.md``, over every training seed.
 
+- ``collect``     reading the pipeline's outputs; :func:`~.collect.list_runs`, the one place that
+                  knows where the runs (seeds) of a (dataset, model) live; means and sds over seeds
 - ``paper``       the paper's published numbers (``paper_numbers.yaml``) and their loader
 - ``tables``      Table II, Table III and the paper-vs-reproduced table (Markdown, LaTeX, CSV)
+- ``claims``      the claims scorecard (CLAIMS.md; both MGN forms)
 - ``figures``     loss-weight plots (Fig. 8), validation curves, qualitative grids (Fig. 6/7)
+- ``plots``       every run's validation TM and loss weights as long CSVs for ``dvc plots``
+- ``study``       the loss-balancing study (beyond the paper): ``weighting.{md,csv}`` (four metrics,
+                  TM, MV, Δm against single-task networks, time per epoch) and every method's loss weights
 - ``efficiency``  parameter count, state-dict size, peak memory and FPS of a model
-- ``index``       ``reports/index.md`` tying everything together
+- ``index``       ``reports/index.md`` and ``reports/metrics.json`` tying everything together
 """

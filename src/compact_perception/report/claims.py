@@ -1,16 +1,22 @@
 """The claims scorecard: the paper's claims (``shared/CLAIMS.md``, section V-VI) tested on
-this run's test scores, one row per claim and dataset (``reports/tables/claims.{md,csv}``).
+this run's test scores, one row per claim, dataset and (for the claims about 15L+MGN) MGN form
+(``reports/tables/claims.{md,csv}``).
 
 Each claim is a difference oriented so that a positive value means the claim holds (e.g.
 ``TM(1L) - TM(15L)`` for "15L has a lower TM than 1L"). ``measured`` is that difference on
-this run's test frames, ``ci_low`` / ``ci_high`` its 95% paired bootstrap interval
-(:mod:`compact_perception.stats`: seeds resampled, then frames, the same frames for every
-model), ``paper`` the same difference from the paper's printed Table II
+this run's test frames, averaged over the training seeds, ``ci_low`` / ``ci_high`` its 95%
+paired bootstrap interval (:mod:`compact_perception.stats`: seeds resampled, then frames, the
+same frames for every model), ``paper`` the same difference from the paper's printed Table II
 (``paper_numbers.yaml``), and the verdict follows :func:`compact_perception.stats.verdict`.
 
-Per-frame scores come from ``data/eval/<ds>/<model>/per_frame.csv`` of every run that
-:func:`..collect.list_runs` lists; MGN's final weights from ``runs/<ds>/compact_15l_mgn/
-summary.json`` (``final_weights``).
+The claims about 15L+MGN (``mgn-tm``, ``mgn-mv``, ``vs-combination``, ``mgn-weights``) are
+tested once per MGN form: ``compact_15l_mgn`` (Algorithm 1 as printed, variant ``Alg. 1``) and
+``compact_15l_mgn_authors`` (the authors' public code, variant ``authors' code``); the paper's
+number is its one 15L+MGN row (which came from the authors' code) for both.
+
+Per-frame scores come from ``data/eval/<ds>/<model>/seed<k>/per_frame.csv`` of every run that
+:func:`..collect.list_runs` lists for the seeds of params.yaml; MGN's final weights from
+``runs/<ds>/<mgn model>/seed<k>/summary.json`` (``final_weights``).
 """
 from __future__ import annotations
 
@@ -25,19 +31,25 @@ from typing import Any, Optional, Sequence
 import numpy as np
 import pandas as pd
 
-from .. import io
+from .. import catalog, io
 from ..stats import (MIN_SEEDS, N_BOOT, BootstrapResult, bootstrap_contrast, paired_bootstrap, seed_bootstrap,
                      stat_mean, stat_mv, stat_tm, verdict)
-from .collect import TASK_METRICS, ReportInputError, align, list_runs, load_row_frames, read_summary
+from .collect import (TASK_METRICS, ReportInputError, SeedSpec, align, list_runs, load_row_frames, read_summary,
+                      seeds_for)
 from .paper import PaperNumbers
 
 log = logging.getLogger(__name__)
 
-DATASET_LABEL: dict[str, str] = {"A": "Set A", "B": "Set B", "C": "Set C", "nuscenes": "nuScenes"}
-LABEL: dict[str, str] = {"chen_bev": "Chen et al.", "polarnet": "PolarNet", "gradnorm_segnet": "GradNorm",
-                         "combination": "the combination", "compact_1l": "1L", "compact_15l": "15L",
-                         "compact_15l_mgn": "15L+MGN"}
-MODELS: tuple[str, ...] = ("chen_bev", "polarnet", "gradnorm_segnet", "compact_1l", "compact_15l", "compact_15l_mgn")
+DATASET_LABEL: dict[str, str] = {d: catalog.DATASETS[d].label for d in catalog.dataset_ids()}
+LABEL: dict[str, str] = {**{m: catalog.model_label(m) for m in catalog.model_ids()}, "combination": "the combination"}
+MODELS: tuple[str, ...] = catalog.model_ids()
+#: The MGN forms tested by every claim about 15L+MGN: model id -> variant label.
+MGN_VARIANTS: dict[str, str] = {m: v for m, v in (("compact_15l_mgn", "Alg. 1"),
+                                                  ("compact_15l_mgn_authors", "authors' code")) if m in LABEL}
+#: The paper's Table II row of 15L+MGN (compared with both forms).
+PAPER_MGN = "compact_15l_mgn"
+#: Compact models (PolarNet's IoU_LS is compared with the best of them).
+COMPACT: tuple[str, ...] = catalog.compact_model_ids()
 #: Equivalence margin of "15L+MGN and 15L have equal MV" (nuScenes): one unit of the paper's
 #: printed precision (3 decimals), the smallest difference Table II could show.
 MV_MARGIN = 1e-3
@@ -54,6 +66,8 @@ CLAIMS: tuple[tuple[str, str], ...] = (
     ("polarnet-ls", "PolarNet has the highest IoU_LS"),
     ("mgn-weights", "MGN gives DE the largest final loss weight"),
 )
+#: The claims tested once per MGN form.
+MGN_CLAIMS: frozenset[str] = frozenset({"mgn-tm", "mgn-mv", "vs-combination", "mgn-weights"})
 
 RULE_TEXT = (
     "**Verdict rule** (CLAIMS.md). Every difference is oriented so that a positive value means the claim holds. "
@@ -61,14 +75,19 @@ RULE_TEXT = (
     "otherwise (an interval touching 0 included). Equality claims use an equivalence margin m: `reproduced` when "
     "the interval lies within [−m, m], `contradicted` when it lies wholly outside, `inconclusive` otherwise; "
     f"the margin for \"equal MV on nuScenes\" is m = {MV_MARGIN:g} (one unit of the paper's printed precision). "
-    "Intervals: paired percentile bootstrap, "
-    f"{N_BOOT} replicates with a fixed RNG seed: the seeds (trainings) of each model are resampled, then the test "
-    "frames within each seed, with the same resampled frames for every model compared. MV is one number per run "
-    "(eq. 7 of the four test-set means), so its interval comes from recomputing MV from the resampled means. "
-    "The combination's per-frame scores join GradNorm (DE, SS), PolarNet (LS) and Chen et al. (BEVP) on the same "
-    "frame. `mgn-weights`: one observation per training seed, w_DE − max(w_SS, w_LS, w_BEVP) of the final weights "
-    f"(runs/<ds>/compact_15l_mgn/summary.json); its interval is a bootstrap over seeds, and with fewer than "
-    f"{MIN_SEEDS} seeds the verdict is `inconclusive` (one training is a single observation). "
+    "`measured`: the difference of the models' values, each the mean over its training seeds (params.yaml `seeds`; "
+    "the baselines `baseline_seeds`) of the run's statistic on all test frames. Intervals: paired percentile "
+    f"bootstrap, {N_BOOT} replicates with a fixed RNG seed: the seeds (trainings) of each model are resampled, then "
+    "the test frames within each seed, with the same resampled frames for every model compared. MV is one number "
+    "per run (eq. 7 of the four test-set means), so its interval comes from recomputing MV from the resampled means. "
+    "The combination's per-frame scores join GradNorm (DE, SS), PolarNet (LS) and Chen et al. (BEVP) of the same "
+    "seed on the same frame. `Seeds`: the number of runs of each model compared (the CSV's `n_seeds` is the "
+    "smallest). The claims about 15L+MGN are tested for both MGN forms, one row each: `Alg. 1` = "
+    "compact_15l_mgn (Algorithm 1 as the paper prints it), `authors' code` = compact_15l_mgn_authors (MGN as the "
+    "authors' public code runs it); `paper` is the paper's one 15L+MGN row for both (its Table II came from the "
+    "authors' code). `mgn-weights`: one observation per training seed, w_DE − max(w_SS, w_LS, w_BEVP) of the final "
+    "weights (runs/<ds>/<MGN model>/seed<k>/summary.json); its interval is a bootstrap over seeds, and with fewer "
+    f"than {MIN_SEEDS} seeds the verdict is `inconclusive` (one training is a single observation). "
     f"`{NO_DATA}`: an input the claim needs is missing. `paper`: the same difference from the paper's printed "
     "Table II (Fig. 8's weights are not printed)."
 )
@@ -76,7 +95,8 @@ RULE_TEXT = (
 
 @dataclass(frozen=True)
 class ClaimRow:
-    """One line of the scorecard."""
+    """One line of the scorecard. ``model``: the model whose claim it is (the MGN form for the
+    claims about 15L+MGN); ``variant``: the MGN form's label (empty for the other claims)."""
 
     dataset: str
     claim: str
@@ -90,6 +110,9 @@ class ClaimRow:
     verdict: str
     margin: Optional[float] = None
     note: str = ""
+    model: str = ""
+    variant: str = ""
+    seeds_per_model: tuple[int, ...] = ()
 
 
 # ----------------------------------------------------------------------------- paper differences
@@ -109,13 +132,15 @@ def _paper_tm(paper: PaperNumbers, ds: str, row: str) -> Optional[float]:
 
 # ----------------------------------------------------------------------------- helpers
 def _row(ds: str, claim: str, statement: str, paper: Optional[float], res: Optional[BootstrapResult],
-         margin: Optional[float] = None, note: str = "") -> ClaimRow:
+         margin: Optional[float] = None, note: str = "", model: str = "") -> ClaimRow:
+    variant = MGN_VARIANTS.get(model, "") if claim in MGN_CLAIMS else ""
     if res is None:
-        return ClaimRow(ds, claim, statement, paper, None, None, None, None, None, NO_DATA, margin, note)
+        return ClaimRow(ds, claim, statement, paper, None, None, None, None, None, NO_DATA, margin, note, model,
+                        variant)
     lo = None if math.isnan(res.ci_low) else res.ci_low
     hi = None if math.isnan(res.ci_high) else res.ci_high
     return ClaimRow(ds, claim, statement, paper, res.estimate, lo, hi, min(res.n_seeds), res.n_frames or None,
-                    verdict(res.ci_low, res.ci_high, margin), margin, note)
+                    verdict(res.ci_low, res.ci_high, margin), margin, note, model, variant, tuple(res.n_seeds))
 
 
 def _groups(frames: dict[str, list[pd.DataFrame]], rows: Sequence[str], cols: Sequence[str]
@@ -133,39 +158,41 @@ def _missing(frames: dict[str, list[pd.DataFrame]], rows: Sequence[str]) -> str:
 
 
 def _pair(ds: str, claim: str, statement: str, frames: dict[str, list[pd.DataFrame]], better: str, worse: str,
-          col: str, paper: Optional[float], n_boot: int, margin: Optional[float] = None) -> ClaimRow:
-    """``better`` beats ``worse`` on ``col`` (a task column, ``tm`` or ``mv``)."""
+          col: str, paper: Optional[float], n_boot: int, margin: Optional[float] = None, *, model: str,
+          note: str = "") -> ClaimRow:
+    """``better`` beats ``worse`` on ``col`` (a task column, ``tm`` or ``mv``); ``model``: whose claim."""
     cols = [col] if col in TASK_METRICS else list(TASK_METRICS)
     groups = _groups(frames, [better, worse], cols)
     if groups is None:
-        return _row(ds, claim, statement, paper, None, margin, _missing(frames, [better, worse]))
+        miss = _missing(frames, [better, worse])
+        return _row(ds, claim, statement, paper, None, margin, f"{miss}; {note}" if note else miss, model)
     stat = stat_mean if col in TASK_METRICS else stat_tm if col == "tm" else stat_mv
     res = paired_bootstrap(groups[0], groups[1], stat, lower_is_better=col in ("mae_de", "tm", "mv"), n_boot=n_boot)
-    return _row(ds, claim, statement, paper, res, margin)
+    return _row(ds, claim, statement, paper, res, margin, note, model)
 
 
 def _polarnet_ls(ds: str, frames: dict[str, list[pd.DataFrame]], paper: PaperNumbers, n_boot: int) -> ClaimRow:
-    """IoU_LS(PolarNet) - max over the other models performing LS (all compared on the same frames)."""
+    """IoU_LS(PolarNet) - max over the compact models (all compared on the same frames)."""
     statement = dict(CLAIMS)["polarnet-ls"]
-    others = [m for m in ("compact_1l", "compact_15l", "compact_15l_mgn") if frames.get(m)]
+    others = [m for m in COMPACT if frames.get(m)]
     pv = _pv(paper, ds, "polarnet", "iou_ls")
-    po = [v for v in (_pv(paper, ds, m, "iou_ls") for m in ("compact_1l", "compact_15l", "compact_15l_mgn"))
-          if v is not None]
+    po = [v for v in (_pv(paper, ds, m, "iou_ls") for m in COMPACT) if v is not None]
     pdiff = _pdiff(pv, max(po)) if po else None
     groups = _groups(frames, ["polarnet"] + others, ["iou_ls"]) if others else None
     if groups is None:
-        return _row(ds, "polarnet-ls", statement, pdiff, None,
-                    note=_missing(frames, ["polarnet", "compact_1l", "compact_15l", "compact_15l_mgn"]))
+        return _row(ds, "polarnet-ls", statement, pdiff, None, note=_missing(frames, ["polarnet", *COMPACT]),
+                    model="polarnet")
     res = bootstrap_contrast(groups, stat_mean, lambda v: v[..., 0] - v[..., 1:].max(axis=-1), n_boot=n_boot)
     return _row(ds, "polarnet-ls", statement, pdiff, res,
-                note=f"against the best of {', '.join(LABEL[m] for m in others)}")
+                note=f"against the best of {', '.join(LABEL[m] for m in others)}", model="polarnet")
 
 
-def mgn_weight_margins(root: Path, ds: str) -> list[float]:
-    """Per MGN run (seed): ``w_de - max(w_ss, w_ls, w_bevp)`` of the final weights (errors
-    name the summary file)."""
+def mgn_weight_margins(root: Path, ds: str, model: str = "compact_15l_mgn",
+                       seeds: Optional[Sequence[int]] = None) -> list[float]:
+    """Per MGN run (seed of ``seeds``, see :func:`..collect.list_runs`): ``w_de - max(w_ss,
+    w_ls, w_bevp)`` of the final weights (errors name the summary file)."""
     out = []
-    for run in list_runs(root, ds, "compact_15l_mgn"):
+    for run in list_runs(root, ds, model, seeds):
         summ = read_summary(run.run_dir)
         if summ is None:
             continue
@@ -183,61 +210,83 @@ def mgn_weight_margins(root: Path, ds: str) -> list[float]:
     return out
 
 
-def _mgn_weights(root: Path, ds: str, n_boot: int) -> ClaimRow:
-    statement = dict(CLAIMS)["mgn-weights"]
-    margins = mgn_weight_margins(root, ds)
+def _mgn_weights(root: Path, ds: str, model: str, n_boot: int, seeds: Optional[Sequence[int]] = None) -> ClaimRow:
+    statement = f"{LABEL[model]}: MGN gives DE the largest final loss weight"
+    margins = mgn_weight_margins(root, ds, model, seeds)
     if not margins:
-        return _row(ds, "mgn-weights", statement, None, None, note="no 15L+MGN summary.json")
+        return _row(ds, "mgn-weights", statement, None, None, note=f"no {LABEL[model]} summary.json", model=model)
     res = seed_bootstrap(margins, n_boot=n_boot)
     note = "paper: Fig. 8 legend values not printed in the text"
     if len(margins) < MIN_SEEDS:
         note = (f"{len(margins)} seed(s) < {MIN_SEEDS}: a single observation, no verdict; DE "
                 f"{'is' if all(m > 0 for m in margins) else 'is not'} the largest weight in "
                 f"{'every' if len(margins) > 1 else 'this'} run. " + note)
-    return _row(ds, "mgn-weights", statement, None, res, note=note)
+    return _row(ds, "mgn-weights", statement, None, res, note=note, model=model)
 
 
 # ----------------------------------------------------------------------------- scorecard
 def claims_for_dataset(root: Path, ds: str, paper: PaperNumbers, frames: Optional[dict[str, list[pd.DataFrame]]] = None,
-                       *, n_boot: int = N_BOOT) -> list[ClaimRow]:
-    """Every claim of :data:`CLAIMS` on dataset ``ds`` (in that order)."""
-    frames = load_row_frames(root, ds, MODELS) if frames is None else frames
+                       *, n_boot: int = N_BOOT, seeds: SeedSpec = None) -> list[ClaimRow]:
+    """Every claim of :data:`CLAIMS` on dataset ``ds`` (in that order; the claims about 15L+MGN
+    once per MGN form of :data:`MGN_VARIANTS`). ``seeds``: the seed lists (see
+    :func:`..collect.list_runs`); ``frames``: per-frame scores already loaded with them."""
+    frames = load_row_frames(root, ds, MODELS, seeds) if frames is None else frames
     st = dict(CLAIMS)
+    paper_note = "paper: its one 15L+MGN row (from the authors' code)"
     rows = [
         _pair(ds, "lidar-tm", st["lidar-tm"], frames, "compact_15l", "compact_1l", "tm",
-              _pdiff(_paper_tm(paper, ds, "compact_1l"), _paper_tm(paper, ds, "compact_15l")), n_boot),
+              _pdiff(_paper_tm(paper, ds, "compact_1l"), _paper_tm(paper, ds, "compact_15l")), n_boot,
+              model="compact_15l"),
         _pair(ds, "lidar-ls", st["lidar-ls"], frames, "compact_15l", "compact_1l", "iou_ls",
-              _pdiff(_pv(paper, ds, "compact_15l", "iou_ls"), _pv(paper, ds, "compact_1l", "iou_ls")), n_boot),
-        _pair(ds, "mgn-tm", st["mgn-tm"], frames, "compact_15l_mgn", "compact_15l", "tm",
-              _pdiff(_paper_tm(paper, ds, "compact_15l"), _paper_tm(paper, ds, "compact_15l_mgn")), n_boot),
-        _pair(ds, "mgn-mv", "15L+MGN and 15L have equal MV (paper, nuScenes)" if ds == "nuscenes" else
-              "15L+MGN has a lower MV than 15L", frames, "compact_15l_mgn", "compact_15l", "mv",
-              _pdiff(_pv(paper, ds, "compact_15l", "mv"), _pv(paper, ds, "compact_15l_mgn", "mv")), n_boot,
-              margin=MV_MARGIN if ds == "nuscenes" else None),
+              _pdiff(_pv(paper, ds, "compact_15l", "iou_ls"), _pv(paper, ds, "compact_1l", "iou_ls")), n_boot,
+              model="compact_15l"),
     ]
-    if ds == "C":  # the paper: the combination wins on C (0.976 vs 0.999)
-        rows.append(_pair(ds, "vs-combination", "the combination has a lower TM than 15L+MGN (paper, set C)", frames,
-                          "combination", "compact_15l_mgn", "tm",
-                          _pdiff(_paper_tm(paper, ds, "compact_15l_mgn"), _paper_tm(paper, ds, "combination")), n_boot))
-    else:
-        rows.append(_pair(ds, "vs-combination", "15L+MGN has a lower TM than the combination", frames,
-                          "compact_15l_mgn", "combination", "tm",
-                          _pdiff(_paper_tm(paper, ds, "combination"), _paper_tm(paper, ds, "compact_15l_mgn")), n_boot))
+    for mgn in MGN_VARIANTS:
+        lab = LABEL[mgn]
+        rows.append(_pair(ds, "mgn-tm", f"{lab} has a lower TM than 15L", frames, mgn, "compact_15l", "tm",
+                          _pdiff(_paper_tm(paper, ds, "compact_15l"), _paper_tm(paper, ds, PAPER_MGN)), n_boot,
+                          model=mgn, note=paper_note))
+        rows.append(_pair(ds, "mgn-mv", f"{lab} and 15L have equal MV (paper, nuScenes)" if ds == "nuscenes" else
+                          f"{lab} has a lower MV than 15L", frames, mgn, "compact_15l", "mv",
+                          _pdiff(_pv(paper, ds, "compact_15l", "mv"), _pv(paper, ds, PAPER_MGN, "mv")), n_boot,
+                          margin=MV_MARGIN if ds == "nuscenes" else None, model=mgn, note=paper_note))
+        if ds == "C":  # the paper: the combination wins on C (0.976 vs 0.999)
+            rows.append(_pair(ds, "vs-combination", f"the combination has a lower TM than {lab} (paper, set C)",
+                              frames, "combination", mgn, "tm",
+                              _pdiff(_paper_tm(paper, ds, PAPER_MGN), _paper_tm(paper, ds, "combination")), n_boot,
+                              model=mgn, note=paper_note))
+        else:
+            rows.append(_pair(ds, "vs-combination", f"{lab} has a lower TM than the combination", frames,
+                              mgn, "combination", "tm",
+                              _pdiff(_paper_tm(paper, ds, "combination"), _paper_tm(paper, ds, PAPER_MGN)), n_boot,
+                              model=mgn, note=paper_note))
+        rows.append(_mgn_weights(root, ds, mgn, n_boot, seeds_for(seeds, mgn)))
     rows.append(_polarnet_ls(ds, frames, paper, n_boot))
-    rows.append(_mgn_weights(root, ds, n_boot))
     return rows
 
 
 def build_claims(root: Path, datasets: Sequence[str], paper: PaperNumbers, *,
-                 frames: Optional[dict[str, dict[str, list[pd.DataFrame]]]] = None, n_boot: int = N_BOOT
-                 ) -> list[ClaimRow]:
-    """The scorecard, sorted by claim (order of :data:`CLAIMS`) then dataset (order given)."""
+                 frames: Optional[dict[str, dict[str, list[pd.DataFrame]]]] = None, n_boot: int = N_BOOT,
+                 seeds: SeedSpec = None) -> list[ClaimRow]:
+    """The scorecard, sorted by claim (order of :data:`CLAIMS`), then dataset (order given), then
+    MGN form (order of :data:`MGN_VARIANTS`)."""
     rows: list[ClaimRow] = []
     for ds in datasets:
-        rows += claims_for_dataset(root, ds, paper, (frames or {}).get(ds), n_boot=n_boot)
+        rows += claims_for_dataset(root, ds, paper, (frames or {}).get(ds), n_boot=n_boot, seeds=seeds)
     order = {c: i for i, (c, _) in enumerate(CLAIMS)}
     ds_order = {d: i for i, d in enumerate(datasets)}
-    return sorted(rows, key=lambda r: (order[r.claim], ds_order[r.dataset]))
+    v_order = {m: i for i, m in enumerate(MGN_VARIANTS)}
+    return sorted(rows, key=lambda r: (order[r.claim], ds_order[r.dataset], v_order.get(r.model, -1)))
+
+
+def verdict_counts(rows: Sequence[ClaimRow]) -> dict[str, int]:
+    """Rows per verdict: ``reproduced``, ``contradicted``, ``inconclusive``, ``no_data``."""
+    keys = {"reproduced": "reproduced", "contradicted": "contradicted", "inconclusive": "inconclusive",
+            NO_DATA: "no_data"}
+    out = {v: 0 for v in keys.values()}
+    for r in rows:
+        out[keys[r.verdict]] += 1
+    return out
 
 
 # ----------------------------------------------------------------------------- output
@@ -245,42 +294,52 @@ def _f(v: Optional[float], nd: int = 4) -> str:
     return "" if v is None else f"{v:+.{nd}f}"
 
 
+def _seeds_text(r: ClaimRow) -> str:
+    if not r.seeds_per_model:
+        return "" if r.n_seeds is None else str(r.n_seeds)
+    return " vs ".join(map(str, r.seeds_per_model))
+
+
 def claims_markdown(rows: list[ClaimRow]) -> str:
     """The scorecard as Markdown, with the verdict rule."""
-    head = ["Claim", "Dataset", "Statement", "Paper", "Measured", "95% CI", "Seeds", "Test frames", "Verdict", "Note"]
+    head = ["Claim", "Dataset", "MGN form", "Statement", "Paper", "Measured", "95% CI", "Seeds", "Test frames",
+            "Verdict", "Note"]
     lines = ["# Claims scorecard", "",
-             "The paper's claims (CLAIMS.md) tested on this run's test scores; one row per claim and dataset.", "",
-             "| " + " | ".join(head) + " |", "|" + "|".join(["---"] * 3 + ["---:"] * 5 + ["---"] * 2) + "|"]
+             "The paper's claims (CLAIMS.md) tested on this run's test scores, over all training seeds; one row per "
+             "claim and dataset, and for the claims about 15L+MGN one row per MGN form (`Alg. 1`: Algorithm 1 as "
+             "printed, compact_15l_mgn; `authors' code`: compact_15l_mgn_authors).", "",
+             "| " + " | ".join(head) + " |", "|" + "|".join(["---"] * 4 + ["---:"] * 5 + ["---"] * 2) + "|"]
     for r in rows:
         ci = "" if r.ci_low is None or r.ci_high is None else f"[{r.ci_low:+.4f}, {r.ci_high:+.4f}]"
         stmt = r.statement + (f" (margin ±{r.margin:g})" if r.margin is not None else "")
         lines.append("| " + " | ".join([
-            f"`{r.claim}`", DATASET_LABEL.get(r.dataset, r.dataset), stmt,
+            f"`{r.claim}`", DATASET_LABEL.get(r.dataset, r.dataset), r.variant, stmt,
             _f(r.paper, 3) if r.paper is not None else "not printed", _f(r.measured), ci,
-            "" if r.n_seeds is None else str(r.n_seeds), "" if r.n_test_frames is None else str(r.n_test_frames),
+            _seeds_text(r), "" if r.n_test_frames is None else str(r.n_test_frames),
             f"**{r.verdict}**", r.note]) + " |")
     lines += ["", RULE_TEXT, ""]
     return "\n".join(lines)
 
 
 def claims_csv(rows: list[ClaimRow]) -> str:
-    header = ["dataset", "claim", "statement", "paper", "measured", "ci_low", "ci_high", "margin", "n_seeds",
-              "n_test_frames", "verdict", "note"]
+    header = ["dataset", "claim", "model", "variant", "statement", "paper", "measured", "ci_low", "ci_high", "margin",
+              "n_seeds", "seeds_per_model", "n_test_frames", "verdict", "note"]
     buf = _io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(header)
     for r in rows:
-        vals: list[Any] = [r.dataset, r.claim, r.statement, r.paper, r.measured, r.ci_low, r.ci_high, r.margin,
-                           r.n_seeds, r.n_test_frames, r.verdict, r.note]
+        vals: list[Any] = [r.dataset, r.claim, r.model, r.variant, r.statement, r.paper, r.measured, r.ci_low,
+                           r.ci_high, r.margin, r.n_seeds, ";".join(map(str, r.seeds_per_model)), r.n_test_frames,
+                           r.verdict, r.note]
         w.writerow(["" if v is None else (repr(v) if isinstance(v, float) else v) for v in vals])
     return buf.getvalue()
 
 
 def write_claims(root: Path, datasets: Sequence[str], paper: PaperNumbers, out_dir: Path, *,
-                 frames: Optional[dict[str, dict[str, list[pd.DataFrame]]]] = None, n_boot: int = N_BOOT
-                 ) -> list[Path]:
+                 frames: Optional[dict[str, dict[str, list[pd.DataFrame]]]] = None, n_boot: int = N_BOOT,
+                 seeds: SeedSpec = None) -> list[Path]:
     """Write ``claims.md`` and ``claims.csv`` under ``out_dir``; returns the paths."""
-    rows = build_claims(root, datasets, paper, frames=frames, n_boot=n_boot)
+    rows = build_claims(root, datasets, paper, frames=frames, n_boot=n_boot, seeds=seeds)
     out = {Path(out_dir) / "claims.md": claims_markdown(rows), Path(out_dir) / "claims.csv": claims_csv(rows)}
     for path, text in out.items():
         io.write_text(path, text)

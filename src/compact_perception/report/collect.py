@@ -1,23 +1,32 @@
 """Read the pipeline's outputs for the reports, with clear errors naming the bad file.
 
-Inputs (ARCHITECTURE.md / SPEC 2):
+Inputs (ARCHITECTURE.md / SPEC 2), per run (one training seed ``k`` of a (dataset, model)):
 
-- ``results/<ds>/<model>/metrics.json``: ``{"mae_de": {"mean", "var"}, ..., "tm", "mv",
+- ``results/<ds>/<model>/seed<k>/metrics.json``: ``{"mae_de": {"mean", "var"}, ..., "tm", "mv",
   "n_frames", "source", "device"}`` with the keys of the tasks the model performs; ``tm`` is
   ``{"mean", "var"}``, ``mv`` is ``{"value", "definition"}`` (one number: eq. 7 of the four
   test-set means); older files with ``{"mean", "var"}`` or a plain float are read too; the
   optional ``class_iou`` and ``depth`` blocks (metrics beyond the paper's) go to
   :attr:`ModelResult.extra`;
-- ``data/eval/<ds>/<model>/per_frame.csv``: one row per test frame (``frame_id`` and the
-  scores), read by :func:`load_frames` for the bootstrap statistics;
+- ``data/eval/<ds>/<model>/seed<k>/per_frame.csv``: one row per test frame (``frame_id`` and
+  the scores), read by :func:`load_frames` for the bootstrap statistics; ``inputs.npz`` and
+  ``predictions.npz`` beside it (the qualitative figures);
+- ``runs/<ds>/<model>/seed<k>/summary.json`` and the dvclive TSVs under ``…/seed<k>/live``;
 - ``results/benchmark/efficiency.json`` (written by ``pipeline/benchmark.py``);
-- ``runs/<ds>/<model>/summary.json`` and the dvclive TSVs under ``runs/<ds>/<model>/live``;
 - ``data/cache/<ds>/meta.json`` (frame counts, resolution, source).
 
-Runs: :func:`list_runs` is the one place that knows where the runs (seeds) of a (dataset,
-model) live: today one run, ``runs/<ds>/<model>`` with ``results/<ds>/<model>`` and
-``data/eval/<ds>/<model>``; when ``runs/<ds>/<model>/seed<k>/`` folders exist, one run per
-such folder (``results/…/seed<k>``, ``data/eval/…/seed<k>``).
+Runs: :func:`list_runs` is the one place of the report that knows where the runs (seeds) of a
+(dataset, model) live (the paths themselves come from :func:`compact_perception.layout.run_paths`).
+Given the seed list of params.yaml (``seeds`` for the compact models, ``baseline_seeds`` for the
+baselines) it lists exactly those seeds' runs that exist: a stale ``seed<k>`` folder of a seed no
+longer in the list is ignored. Without a seed list (``None``) it lists every ``seed<k>`` folder,
+or the single run of the older layout (``runs/<ds>/<model>`` with ``results/<ds>/<model>`` and
+``data/eval/<ds>/<model>``). Every loader below takes the seeds through it.
+
+Over seeds (:func:`aggregate_runs`): each metric's run-level value (a run's test-set mean; TM and
+MV of the run's four test-set means, eq. 6-7 via :func:`compact_perception.metrics.scores_from_means`)
+is averaged over the runs, with the sample standard deviation (n - 1) over them; the per-frame
+variance the paper prints is averaged over the runs.
 """
 from __future__ import annotations
 
@@ -27,12 +36,19 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 import re
-from typing import Any, Optional, Sequence
+from typing import Any, Mapping, Optional, Sequence
 
 import numpy as np
 import pandas as pd
 
+from ..layout import run_paths
+from ..metrics import scores_from_means
+
 log = logging.getLogger(__name__)
+
+#: Seed lists: per model id (params ``seeds`` / ``baseline_seeds`` by model group), one list
+#: for every model, or ``None`` (every ``seed<k>`` folder found).
+SeedSpec = Optional[Mapping[str, Sequence[int]] | Sequence[int]]
 
 TASK_METRICS: tuple[str, ...] = ("mae_de", "iou_ss", "iou_ls", "iou_bevp")
 SCORE_KEYS: tuple[str, ...] = TASK_METRICS + ("tm", "mv")
@@ -56,15 +72,21 @@ class ReportInputError(ValueError):
 
 @dataclass(frozen=True)
 class Cell:
-    """A mean (and, for task metrics, the variance over test frames)."""
+    """One metric of a model: ``mean`` (of one run, or the mean over seeds of the run-level
+    values), ``var`` the variance over test frames (the paper's ``±``; the mean over seeds of
+    each run's), ``std`` the sample standard deviation (n - 1) of the run-level values over
+    the ``n_seeds`` runs (``None`` with one run)."""
 
     mean: float
     var: Optional[float] = None
+    std: Optional[float] = None
+    n_seeds: int = 1
 
 
 @dataclass
 class ModelResult:
-    """One ``metrics.json``."""
+    """One ``metrics.json`` (``seed`` set, ``runs`` empty), or a model's runs aggregated over
+    seeds by :func:`aggregate_runs` (``runs`` the per-seed results, ``seeds`` their seeds)."""
 
     dataset: str
     model: str
@@ -73,6 +95,20 @@ class ModelResult:
     source: Optional[str] = None
     device: Optional[str] = None
     extra: dict[str, Any] = field(default_factory=dict)
+    seed: Optional[int] = None
+    runs: list["ModelResult"] = field(default_factory=list)
+
+    @property
+    def n_seeds(self) -> int:
+        return len(self.runs) if self.runs else 1
+
+    @property
+    def seeds(self) -> tuple[Optional[int], ...]:
+        return tuple(r.seed for r in self.runs) if self.runs else (self.seed,)
+
+    def per_run(self) -> list["ModelResult"]:
+        """The per-seed results (itself for a single metrics file)."""
+        return list(self.runs) if self.runs else [self]
 
 
 def _num(v: Any, where: str) -> float:
@@ -123,18 +159,106 @@ def read_metrics(path: Path, dataset: str = "", model: str = "") -> ModelResult:
                        extra)
 
 
-def load_results(results_dir: Path, datasets: tuple[str, ...] | list[str],
-                 models: tuple[str, ...] | list[str]) -> dict[str, dict[str, ModelResult]]:
-    """All present ``results/<ds>/<model>/metrics.json``; missing ones are logged and skipped."""
+def seeds_for(seeds: SeedSpec, model: str) -> Optional[tuple[int, ...]]:
+    """The seed list of ``model`` in ``seeds`` (``None``: every seed folder found)."""
+    if seeds is None:
+        return None
+    if isinstance(seeds, Mapping):
+        if model not in seeds:
+            return None
+        return tuple(int(k) for k in seeds[model])
+    return tuple(int(k) for k in seeds)
+
+
+def _sample_std(values: Sequence[float]) -> Optional[float]:
+    return float(np.std(np.asarray(values, dtype=float), ddof=1)) if len(values) > 1 else None
+
+
+def aggregate_cells(cells: Sequence[Cell]) -> Cell:
+    """Mean over runs of the run-level values, their sample std (n - 1; ``None`` for one run),
+    and the mean of the per-frame variances (``None`` unless every run has one)."""
+    if not cells:
+        raise ValueError("aggregate_cells: no cells")
+    means = [c.mean for c in cells]
+    var = None if any(c.var is None for c in cells) else float(np.mean([c.var for c in cells]))
+    return Cell(float(np.mean(means)), var, _sample_std(means), len(cells))
+
+
+def with_derived(result: ModelResult, where: str = "") -> ModelResult:
+    """``result`` with TM and MV recomputed from its four task means (eq. 6-7, the project's
+    one implementation); a stored value that differs (an older file holding the mean of a
+    per-frame MV) is logged and replaced. Models without the four tasks keep what they have."""
+    means = {c: cell.mean for c, cell in result.scores.items() if c in TASK_METRICS}
+    derived = scores_from_means(means)
+    if not derived:
+        return result
+    scores = dict(result.scores)
+    for c in ("tm", "mv"):
+        old = scores.get(c)
+        if old is not None and abs(old.mean - derived[c]) > 1e-9:
+            log.warning("%s: %s %.6g is not eq. %s of the four means (%.6g); the report uses the latter "
+                        "(re-run evaluate)", where or f"{result.dataset}/{result.model}", c, old.mean,
+                        "6" if c == "tm" else "7", derived[c])
+        scores[c] = Cell(derived[c], old.var if (c == "tm" and old is not None) else None)
+    return ModelResult(result.dataset, result.model, scores, result.n_frames, result.source, result.device,
+                       result.extra, result.seed, list(result.runs))
+
+
+def aggregate_runs(runs: Sequence[ModelResult]) -> ModelResult:
+    """One model's runs (seeds) as one result: every score a :class:`Cell` over the runs
+    (:func:`aggregate_cells`; a score only some runs have is left out and logged), ``runs`` the
+    per-seed results (TM, MV recomputed per run, :func:`with_derived`)."""
+    if not runs:
+        raise ValueError("aggregate_runs: no runs")
+    runs = [with_derived(r, str(r.seed)) for r in runs]
+    first = runs[0]
+    keys = [k for k in SCORE_KEYS if any(k in r.scores for r in runs)]
+    scores: dict[str, Cell] = {}
+    for k in keys:
+        have = [r.scores[k] for r in runs if k in r.scores]
+        if len(have) != len(runs):
+            log.warning("%s/%s: %s present in %d of %d runs; left out", first.dataset, first.model, k, len(have),
+                        len(runs))
+            continue
+        scores[k] = aggregate_cells(have)
+    frames = sorted({r.n_frames for r in runs if r.n_frames is not None})
+    if len(frames) > 1:
+        log.warning("%s/%s: the runs scored different numbers of test frames %s", first.dataset, first.model, frames)
+    srcs = sorted({r.source for r in runs if r.source})
+    devs = sorted({r.device for r in runs if r.device})
+    return ModelResult(first.dataset, first.model, scores, frames[0] if frames else None,
+                       "; ".join(srcs) or None, "; ".join(devs) or None, first.extra, None, list(runs))
+
+
+def load_model_runs(root: Path, dataset: str, model: str, seeds: Optional[Sequence[int]] = None
+                    ) -> list[ModelResult]:
+    """The ``metrics.json`` of every run of (``dataset``, ``model``) that :func:`list_runs`
+    lists and that has one (``seed`` set on each); runs without one are logged and skipped."""
+    out = []
+    for run in list_runs(root, dataset, model, seeds):
+        if run.metrics_path.is_file():
+            r = read_metrics(run.metrics_path, dataset, model)
+            r.seed = run.seed
+            out.append(r)
+        else:
+            log.warning("no metrics for %s/%s seed %s (%s missing)", dataset, model, run.seed, run.metrics_path)
+    return out
+
+
+def load_results(root: Path, datasets: Sequence[str], models: Sequence[str], seeds: SeedSpec = None
+                 ) -> dict[str, dict[str, ModelResult]]:
+    """Every (dataset, model) with at least one run's ``metrics.json`` (runs from
+    :func:`list_runs` with the model's seeds), aggregated over its runs (:func:`aggregate_runs`);
+    a (dataset, model) without any is logged and left out."""
     out: dict[str, dict[str, ModelResult]] = {}
     for ds in datasets:
         out[ds] = {}
         for m in models:
-            p = Path(results_dir) / ds / m / "metrics.json"
-            if p.is_file():
-                out[ds][m] = read_metrics(p, ds, m)
+            runs = load_model_runs(root, ds, m, seeds_for(seeds, m))
+            if runs:
+                out[ds][m] = aggregate_runs(runs)
             else:
-                log.warning("no metrics for %s/%s (%s missing)", ds, m, p)
+                log.warning("no metrics for %s/%s", ds, m)
     return out
 
 
@@ -185,12 +309,18 @@ class DatasetScale:
     counts: dict[str, int] = field(default_factory=dict)
     resolution: Optional[int] = None
     has_dvs: Optional[bool] = None
-    epochs: dict[str, dict[str, Any]] = field(default_factory=dict)   # model -> summary facts
+    #: model -> one dict of summary facts per run (``seed`` included), in seed order
+    epochs: dict[str, list[dict[str, Any]]] = field(default_factory=dict)
+    #: test frames scored per run (``n_frames`` of the metrics files; several values if they differ)
+    n_test_frames: tuple[int, ...] = ()
+    #: model -> seeds of its runs with results
+    seeds: dict[str, tuple[Optional[int], ...]] = field(default_factory=dict)
 
 
-def collect_scale(root: Path, datasets: list[str] | tuple[str, ...], models: list[str] | tuple[str, ...],
-                  results: Optional[dict[str, dict[str, ModelResult]]] = None) -> dict[str, DatasetScale]:
-    """Frame counts, resolution, data source and epochs run, per dataset."""
+def collect_scale(root: Path, datasets: Sequence[str], models: Sequence[str],
+                  results: Optional[dict[str, dict[str, ModelResult]]] = None,
+                  seeds: SeedSpec = None) -> dict[str, DatasetScale]:
+    """Frame counts, resolution, data source, test frames, seeds and epochs run, per dataset."""
     out: dict[str, DatasetScale] = {}
     for ds in datasets:
         sc = DatasetScale(ds)
@@ -202,20 +332,28 @@ def collect_scale(root: Path, datasets: list[str] | tuple[str, ...], models: lis
             src = meta.get("source")
             sc.source = SOURCE_LABEL.get(src, src) if src else None
         for m in models:
-            runs = list_runs(root, ds, m)
-            summ = read_summary(runs[0].run_dir) if runs else None
-            if summ:
-                sc.epochs[m] = {k: summ.get(k) for k in ("epochs_run", "best_epoch", "max_epochs", "train_seconds", "stopped_early")}
+            facts = []
+            for run in list_runs(root, ds, m, seeds_for(seeds, m)):
+                summ = read_summary(run.run_dir)
+                if summ:
+                    facts.append({"seed": run.seed, **{k: summ.get(k) for k in (
+                        "epochs_run", "best_epoch", "max_epochs", "train_seconds", "stopped_early")}})
+            if facts:
+                sc.epochs[m] = facts
         if results and ds in results:
-            srcs = {r.source for r in results[ds].values() if r.source}
+            srcs = {s for r in results[ds].values() for s in (r.source or "").split("; ") if s}
             if srcs:
                 sc.source = "; ".join(sorted(srcs))
+            sc.n_test_frames = tuple(sorted({r.n_frames for res in results[ds].values() for r in res.per_run()
+                                             if r.n_frames is not None}))
+            sc.seeds = {m: res.seeds for m, res in results[ds].items()}
         out[ds] = sc
     return out
 
 
 # ----------------------------------------------------------------------------- runs and per-frame scores
 _SEED_DIR = re.compile(r"^seed(\d+)$")
+_STALE_LOGGED: set[tuple] = set()   # stale seed folders already logged (once per run of the report)
 
 
 @dataclass(frozen=True)
@@ -224,27 +362,55 @@ class RunRef:
 
     dataset: str
     model: str
-    seed: Optional[int]            # None: the single run of today's layout
+    seed: Optional[int]            # None: the single run of the older (seedless) layout
     run_dir: Path                  # runs/<ds>/<model>[/seed<k>]: summary.json, live/
     metrics_path: Path             # results/<ds>/<model>[/seed<k>]/metrics.json
     eval_dir: Path                 # data/eval/<ds>/<model>[/seed<k>]: per_frame.csv, npz files
 
 
-def list_runs(root: Path, dataset: str, model: str) -> list[RunRef]:
-    """The runs of (``dataset``, ``model``) under ``root``, sorted by seed: one per
-    ``runs/<ds>/<model>/seed<k>/`` folder if there are any, else the single run
-    ``runs/<ds>/<model>`` (listed whenever its run, metrics or per-frame folder exists)."""
+def list_runs(root: Path, dataset: str, model: str, seeds: Optional[Sequence[int]] = None) -> list[RunRef]:
+    """The runs of (``dataset``, ``model``) under ``root``, sorted by seed.
+
+    ``seeds`` given (params ``seeds`` / ``baseline_seeds``): the run of each listed seed ``k``
+    whose ``runs/…/seed<k>``, ``results/…/seed<k>/metrics.json`` or ``data/eval/…/seed<k>``
+    exists; ``seed<k>`` folders of other seeds are ignored (stale, logged). ``seeds`` ``None``:
+    one run per ``seed<k>`` folder found (under runs/, results/ or data/eval/), else the single run
+    ``runs/<ds>/<model>`` of the older layout (listed whenever its run, metrics or per-frame
+    folder exists)."""
     root = Path(root)
     base_run, base_res, base_eval = (root / "runs" / dataset / model, root / "results" / dataset / model,
                                      root / "data" / "eval" / dataset / model)
-    seeds = sorted(int(m.group(1)) for p in (base_run.iterdir() if base_run.is_dir() else [])
-                   if p.is_dir() and (m := _SEED_DIR.match(p.name)))
-    if seeds:
-        return [RunRef(dataset, model, k, base_run / f"seed{k}", base_res / f"seed{k}" / "metrics.json",
-                       base_eval / f"seed{k}") for k in seeds]
+    found = sorted({int(m.group(1)) for base in (base_run, base_res, base_eval)
+                    for p in (base.iterdir() if base.is_dir() else [])
+                    if p.is_dir() and (m := _SEED_DIR.match(p.name))})
+    if seeds is not None:
+        wanted = sorted({int(k) for k in seeds})
+        stale = [k for k in found if k not in wanted]
+        if stale and (str(root), dataset, model, tuple(stale)) not in _STALE_LOGGED:
+            _STALE_LOGGED.add((str(root), dataset, model, tuple(stale)))
+            log.info("%s/%s: ignoring seed folder(s) %s (not in the seed list %s)", dataset, model,
+                     [f"seed{k}" for k in stale], wanted)
+        out = []
+        for k in wanted:
+            p = run_paths(dataset, model, k, root)
+            if p.run_dir.is_dir() or p.metrics_path.is_file() or p.eval_dir.is_dir():
+                out.append(RunRef(dataset, model, k, p.run_dir, p.metrics_path, p.eval_dir))
+        return out
+    if found:
+        out = []
+        for k in found:
+            p = run_paths(dataset, model, k, root)
+            out.append(RunRef(dataset, model, k, p.run_dir, p.metrics_path, p.eval_dir))
+        return out
     if base_run.is_dir() or (base_res / "metrics.json").is_file() or base_eval.is_dir():
         return [RunRef(dataset, model, None, base_run, base_res / "metrics.json", base_eval)]
     return []
+
+
+def run_name(run: RunRef) -> str:
+    """``<ds>/<model>/seed<k>`` (``<ds>/<model>`` for the single run of the older layout): the
+    ``run`` field of the plots' CSV files."""
+    return f"{run.dataset}/{run.model}" + ("" if run.seed is None else f"/seed{run.seed}")
 
 
 def read_per_frame(path: Path, columns: Sequence[str] = ()) -> pd.DataFrame:
@@ -269,24 +435,41 @@ def read_per_frame(path: Path, columns: Sequence[str] = ()) -> pd.DataFrame:
     return df.set_index("frame_id").sort_index()
 
 
-def load_frames(root: Path, dataset: str, model: str, columns: Sequence[str] = ()) -> list[pd.DataFrame]:
-    """Per-frame scores of every run of (``dataset``, ``model``) that has a ``per_frame.csv``
-    (see :func:`list_runs`); runs without one are logged and skipped."""
+def load_frames(root: Path, dataset: str, model: str, columns: Sequence[str] = (),
+                seeds: Optional[Sequence[int]] = None) -> list[pd.DataFrame]:
+    """Per-frame scores of every run of (``dataset``, ``model``) that :func:`list_runs` lists
+    (with ``seeds``) and that has a ``per_frame.csv`` (``df.attrs["seed"]`` its seed); runs
+    without one are logged and skipped."""
     out = []
-    for run in list_runs(root, dataset, model):
+    for run in list_runs(root, dataset, model, seeds):
         p = run.eval_dir / "per_frame.csv"
         if p.is_file():
-            out.append(read_per_frame(p, columns))
+            df = read_per_frame(p, columns)
+            df.attrs["seed"] = run.seed
+            out.append(df)
         else:
             log.warning("no per-frame scores for %s/%s (%s missing)", dataset, model, p)
     return out
 
 
+def pair_by_seed(runs: Sequence[Sequence[Any]], seed_of: Any) -> list[tuple[Any, ...]]:
+    """Runs of several models matched into tuples: by seed value (the seeds all of them have, in
+    order) when every run has a seed, else by position (as many as the model with the fewest)."""
+    if not runs or not all(runs):
+        return []
+    seeds = [[seed_of(r) for r in g] for g in runs]
+    if all(k is not None for g in seeds for k in g):
+        common = sorted(set.intersection(*(set(g) for g in seeds)))
+        return [tuple(g[seeds[i].index(k)] for i, g in enumerate(runs)) for k in common]
+    n = min(len(g) for g in runs)
+    return [tuple(g[k] for g in runs) for k in range(n)]
+
+
 def combination_frames(frames: dict[str, list[pd.DataFrame]]) -> list[pd.DataFrame]:
     """Per-frame scores of the combination of baselines (SPEC 6): ``mae_de``, ``iou_ss`` of
     GradNorm, ``iou_ls`` of PolarNet, ``iou_bevp`` of Chen et al., joined on ``frame_id``
-    (frames all three scored). Run k of the combination joins run k of each baseline (as
-    many runs as the baseline with the fewest); empty if a baseline has no per-frame scores."""
+    (frames all three scored). One combination run per training seed the three baselines all
+    have (:func:`pair_by_seed`); empty if a baseline has no per-frame scores."""
     sources = sorted(set(COMBINATION_SOURCE.values()))
     if not all(frames.get(m) for m in sources):
         return []
@@ -294,12 +477,13 @@ def combination_frames(frames: dict[str, list[pd.DataFrame]]) -> list[pd.DataFra
         if any(c not in df.columns for df in frames[m]):
             log.warning("combination: the per-frame scores of %s lack %r; no per-frame combination", m, c)
             return []
-    n = min(len(frames[m]) for m in sources)
     out = []
-    for k in range(n):
-        parts = [frames[m][k][[c]] for c, m in COMBINATION_SOURCE.items()]
-        joined = pd.concat(parts, axis=1, join="inner").sort_index()
-        out.append(joined[list(COMBINATION_SOURCE)])
+    for group in pair_by_seed([frames[m] for m in sources], lambda df: df.attrs.get("seed")):
+        run = dict(zip(sources, group))
+        parts = [run[m][[c]] for c, m in COMBINATION_SOURCE.items()]
+        joined = pd.concat(parts, axis=1, join="inner").sort_index()[list(COMBINATION_SOURCE)]
+        joined.attrs["seed"] = group[0].attrs.get("seed")
+        out.append(joined)
     return out
 
 
@@ -316,10 +500,11 @@ def align(groups: Sequence[Sequence[pd.DataFrame]], columns: Sequence[str]) -> l
     return [[df.loc[common, list(columns)].to_numpy(dtype=float) for df in g] for g in groups]
 
 
-def load_row_frames(root: Path, dataset: str, models: Sequence[str]) -> dict[str, list[pd.DataFrame]]:
-    """Per-frame scores of every model of ``dataset`` with any (all its runs), plus the
-    ``combination`` of baselines (:func:`combination_frames`) when its three sources have them."""
-    frames = {m: load_frames(root, dataset, m) for m in models}
+def load_row_frames(root: Path, dataset: str, models: Sequence[str], seeds: SeedSpec = None
+                    ) -> dict[str, list[pd.DataFrame]]:
+    """Per-frame scores of every model of ``dataset`` with any (all its runs of ``seeds``), plus
+    the ``combination`` of baselines (:func:`combination_frames`) when its three sources have them."""
+    frames = {m: load_frames(root, dataset, m, seeds=seeds_for(seeds, m)) for m in models}
     frames = {m: f for m, f in frames.items() if f}
     comb = combination_frames(frames)
     if comb:

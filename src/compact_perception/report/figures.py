@@ -1,6 +1,12 @@
 """Report figures (SPEC 8): loss weights per epoch (Fig. 8), validation curves, and the
 qualitative grids (Fig. 6/7). Matplotlib with the Agg backend; PNGs written atomically.
 
+The qualitative grid (Fig. 6/7) lives in :mod:`.qualitative`.
+
+Every (dataset, model) has one run per training seed: the loss-weight and curve figures draw
+the mean over the seeds (thick) with each seed's run (thin); the qualitative grid shows one
+run per model (the first seed), as the caption says.
+
 Top-view images (LiDAR, LS, BEVP) are on the grid of eq. (2)-(3): row i grows forward (+x),
 column j grows to the left (+y). They are drawn rotated by 180 degrees so that forward is up
 and the ego's left is on the left of the picture.
@@ -9,132 +15,137 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
-from typing import Any, Mapping, Optional, Sequence
+from typing import Mapping, Optional, Sequence, Union
 
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
 from matplotlib.ticker import MaxNLocator  # noqa: E402
 
-from .. import io  # noqa: E402
-from ..classes import BEV_PALETTE, CARLA_PALETTE  # noqa: E402
+from .. import catalog  # noqa: E402
 from .collect import read_summary, read_tsv_metric  # noqa: E402
+from .qualitative import plot_qualitative, save_figure  # noqa: E402,F401  (plot_qualitative: re-export)
 
 log = logging.getLogger(__name__)
 
 WEIGHT_NAMES: tuple[str, ...] = ("w_de", "w_ss", "w_ls", "w_bevp")
 WEIGHT_LABEL: dict[str, str] = {"w_de": "DE", "w_ss": "SS", "w_ls": "LS", "w_bevp": "BEVP"}
-MODEL_LABEL: dict[str, str] = {
-    "chen_bev": "Chen et al.", "polarnet": "PolarNet", "gradnorm_segnet": "GradNorm",
-    "compact_1l": "1L", "compact_15l": "15L", "compact_15l_mgn": "15L+MGN",
-}
-NO_LABEL = 255
-VIEW_NAMES: tuple[str, ...] = ("F", "L", "Ri", "R")
+MODEL_LABEL: dict[str, str] = {m: catalog.model_label(m) for m in catalog.model_ids()}
 
 
-def nuscenes_palette(n: int = 32) -> np.ndarray:
-    """A fixed, distinct ``n``-colour palette (uint8 RGB) for the nuScenes-lidarseg classes:
-    tab20 followed by tab20b (class 0, noise/unlabelled, is black)."""
-    cols = [plt.get_cmap("tab20")(i)[:3] for i in range(20)] + [plt.get_cmap("tab20b")(i)[:3] for i in range(20)]
-    pal = (np.array(cols[:n]) * 255).round().astype(np.uint8)
-    pal[0] = 0
-    return pal
+# ----------------------------------------------------------------------------- training logs
+def read_val_curve(run_dir: Path) -> Optional[pd.Series]:
+    """A run's validation TM per epoch: dvclive's ``val/tm`` where logged (the compact models),
+    else ``val_score`` (the selection score: TM for the compact model, the model's own share of TM
+    for a baseline). ``None`` if neither exists."""
+    live = Path(run_dir) / "live"
+    s = read_tsv_metric(live, "val/tm")
+    if s is None:
+        s = read_tsv_metric(live, "val_score")
+    return s
 
 
-def palettes(dataset: str) -> tuple[np.ndarray, np.ndarray]:
-    """(segmentation palette, BEV palette) of a dataset."""
-    if dataset == "nuscenes":
-        p = nuscenes_palette(32)
-        return p, p
-    return CARLA_PALETTE, BEV_PALETTE
-
-
-def colour_index(index: np.ndarray, palette: np.ndarray) -> np.ndarray:
-    """Class-index map -> RGB; out-of-palette values (255 = no label) are black."""
-    idx = np.asarray(index).astype(np.int64)
-    out = np.zeros(idx.shape + (3,), np.uint8)
-    ok = (idx >= 0) & (idx < len(palette))
-    out[ok] = palette[idx[ok]]
+def read_weight_curves(run_dir: Path) -> dict[str, pd.Series]:
+    """Every loss weight a run logged (dvclive ``w_<task>.tsv``), task id -> weight per epoch;
+    the paper's four tasks first, in order."""
+    mdir = Path(run_dir) / "live" / "plots" / "metrics"
+    names = sorted(p.stem for p in mdir.glob("w_*.tsv")) if mdir.is_dir() else []
+    names = [n for n in WEIGHT_NAMES if n in names] + [n for n in names if n not in WEIGHT_NAMES]
+    out = {}
+    for n in names:
+        s = read_tsv_metric(Path(run_dir) / "live", n)
+        if s is not None and len(s):
+            out[n[2:]] = s
     return out
 
 
-def colour_masks(masks: np.ndarray, palette: np.ndarray) -> np.ndarray:
-    """Multi-label masks (C,S,S) -> RGB, later classes painted over earlier ones."""
-    masks = np.asarray(masks)
-    out = np.zeros(masks.shape[1:] + (3,), np.uint8)
-    for c in range(min(len(masks), len(palette))):
-        out[masks[c] > 0] = palette[c]
-    return out
+def _mean_curve(series: Sequence[pd.Series]) -> pd.Series:
+    """Mean over runs per epoch (over the runs that reached that epoch)."""
+    return pd.concat(list(series), axis=1).mean(axis=1).sort_index()
 
 
-def colour_dvs(dvs: np.ndarray) -> np.ndarray:
-    """DVS event image (2,S,S), channel 0 positive, 1 negative -> red/blue on black."""
-    d = np.asarray(dvs, dtype=np.float32)
-    out = np.zeros(d.shape[1:] + (3,), np.float32)
-    for ch, col in ((0, 0), (1, 2)):
-        m = d[ch].max()
-        if m > 0:
-            out[..., col] = d[ch] / m
-    return (out * 255).astype(np.uint8)
+RunDirs = Union[Path, Sequence[Path]]
 
 
-def topview(img: np.ndarray) -> np.ndarray:
-    """Rotate a top-view grid image (i forward, j left) so forward is up, left is left."""
-    return np.asarray(img)[::-1, ::-1]
-
-
-def save_figure(fig: "plt.Figure", path: Path, dpi: int = 100) -> Path:
-    """Write a report figure (tight bounding box) atomically; closes the figure."""
-    return io.write_figure(fig, path, dpi=dpi, tight=True)
+def _as_runs(runs: RunDirs) -> list[Path]:
+    return [Path(runs)] if isinstance(runs, (str, Path)) else [Path(r) for r in runs]
 
 
 # ----------------------------------------------------------------------------- Fig. 8
-def plot_loss_weights(run_dir: Path, out_png: Path, title: str = "") -> Optional[Path]:
-    """Loss weights per epoch of an MGN run (Fig. 8): one line per task, a black dashed line at
-    the best epoch, the final weights in the legend. ``None`` if the run has no weight logs."""
-    live = Path(run_dir) / "live"
-    series = {n: read_tsv_metric(live, n) for n in WEIGHT_NAMES}
-    series = {n: s for n, s in series.items() if s is not None and len(s)}
-    if not series:
-        log.warning("no loss-weight logs under %s; skipping %s", live, out_png)
+def plot_loss_weights(runs: Union[RunDirs, Mapping[str, RunDirs]], out_png: Path, title: str = "") -> Optional[Path]:
+    """Loss weights per epoch (Fig. 8): one panel per entry of ``runs`` (panel title -> the run
+    folders of its seeds; a folder or a list of folders makes one panel). Per task the mean over
+    seeds (thick) and every seed's run (thin); dashed black lines at each seed's best epoch; the
+    legend gives the final weights (mean over seeds). ``None`` if no run has weight logs."""
+    panels = dict(runs) if isinstance(runs, Mapping) else {"": runs}
+    data = {}
+    for name, dirs in panels.items():
+        curves = [(d, read_weight_curves(d)) for d in _as_runs(dirs)]
+        curves = [(d, c) for d, c in curves if c]
+        if curves:
+            data[name] = curves
+    if not data:
+        log.warning("no loss-weight logs for %s; skipping %s", list(panels), out_png)
         return None
-    summary = read_summary(Path(run_dir)) or {}
-    final = summary.get("final_weights") or {}
-    fig, ax = plt.subplots(figsize=(6.4, 3.6))
-    for n, s in series.items():
-        w = float(final.get(n, s.iloc[-1]))
-        ax.plot(s.index, s.values, marker="o", markersize=3, label=f"{WEIGHT_LABEL[n]}: {w:.3f}")
-    best = summary.get("best_epoch")
-    if isinstance(best, int) and best >= 0:
-        ax.axvline(best, color="black", linestyle="--", linewidth=1, label=f"best epoch {best}")
-    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
-    ax.set_xlabel("epoch")
-    ax.set_ylabel("loss weight")
-    ax.set_title(title or f"Loss weights ({Path(run_dir).name})")
-    ax.legend(title="final weights", fontsize=8, loc="best")
-    ax.grid(alpha=0.3)
+    fig, axes = plt.subplots(1, len(data), figsize=(6.4 * len(data), 3.8), squeeze=False)
+    for ax, (name, curves) in zip(axes[0], data.items()):
+        tasks = list(dict.fromkeys(t for _, c in curves for t in c))
+        finals = {t: [] for t in tasks}
+        for d, c in curves:
+            summ = read_summary(d) or {}
+            fw = summ.get("final_weights") or {}
+            for t, s in c.items():
+                finals[t].append(float(fw.get(f"w_{t}", s.iloc[-1])))
+            best = summ.get("best_epoch")
+            if isinstance(best, int) and best >= 0:
+                ax.axvline(best, color="black", linestyle="--", linewidth=0.8, alpha=0.6)
+        for i, t in enumerate(tasks):
+            colour = f"C{i}"
+            series = [c[t] for _, c in curves if t in c]
+            for s in series if len(series) > 1 else []:
+                ax.plot(s.index, s.values, color=colour, linewidth=0.7, alpha=0.35)
+            m = _mean_curve(series)
+            label = f"{WEIGHT_LABEL.get('w_' + t, t.upper())}: {np.mean(finals[t]):.3f}"
+            ax.plot(m.index, m.values, color=colour, marker="o", markersize=3, linewidth=1.8, label=label)
+        ax.plot([], [], color="black", linestyle="--", linewidth=0.8, label="best epoch (per seed)")
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+        ax.set_xlabel("epoch")
+        ax.set_ylabel("loss weight")
+        n = len(curves)
+        ax.set_title((f"{name}: " if name else "") + (f"mean of {n} seeds (thin: each seed)" if n > 1 else "1 seed"),
+                     fontsize=9)
+        ax.legend(title="final weights" + (" (mean over seeds)" if n > 1 else ""), fontsize=8, loc="best")
+        ax.grid(alpha=0.3)
+    fig.suptitle(title or "Loss weights per epoch", fontsize=10)
     return save_figure(fig, out_png)
 
 
 # ----------------------------------------------------------------------------- curves
-def plot_training_curves(runs: Mapping[str, Path], out_png: Path, title: str = "") -> Optional[Path]:
-    """Validation score per epoch per model: ``val/tm`` where logged, else ``val_score`` (TM for
-    the compact model, the model's own share of TM for a baseline). Dots mark best epochs."""
+def plot_training_curves(runs: Mapping[str, RunDirs], out_png: Path, title: str = "") -> Optional[Path]:
+    """Validation score per epoch per model (:func:`read_val_curve`; ``runs``: model -> the run
+    folders of its seeds): the mean over seeds (thick), each seed (thin), dots at each seed's
+    best epoch."""
     fig, ax = plt.subplots(figsize=(6.4, 3.6))
     drawn = 0
-    for model, run_dir in runs.items():
-        live = Path(run_dir) / "live"
-        s = read_tsv_metric(live, "val/tm")
-        if s is None:
-            s = read_tsv_metric(live, "val_score")
-        if s is None or not len(s):
+    for i, (model, dirs) in enumerate(runs.items()):
+        curves = [(d, read_val_curve(d)) for d in _as_runs(dirs)]
+        curves = [(d, s) for d, s in curves if s is not None and len(s)]
+        if not curves:
             continue
-        (line,) = ax.plot(s.index, s.values, label=MODEL_LABEL.get(model, model))
-        best = (read_summary(Path(run_dir)) or {}).get("best_epoch")
-        if isinstance(best, int) and best in s.index:
-            ax.plot([best], [s.loc[best]], "o", color=line.get_color())
+        colour = f"C{i % 10}"
+        m = _mean_curve([s for _, s in curves])
+        n = len(curves)
+        ax.plot(m.index, m.values, color=colour, linewidth=1.6,
+                label=MODEL_LABEL.get(model, model) + (f" (mean of {n})" if n > 1 else ""))
+        for d, s in curves:
+            if n > 1:
+                ax.plot(s.index, s.values, color=colour, linewidth=0.6, alpha=0.35)
+            best = (read_summary(Path(d)) or {}).get("best_epoch")
+            if isinstance(best, int) and best in s.index:
+                ax.plot([best], [s.loc[best]], "o", color=colour, markersize=3)
         drawn += 1
     if not drawn:
         plt.close(fig)
@@ -144,102 +155,6 @@ def plot_training_curves(runs: Mapping[str, Path], out_png: Path, title: str = "
     ax.set_xlabel("epoch")
     ax.set_ylabel("validation TM (baselines: own tasks' share)")
     ax.set_title(title or "Validation TM per epoch")
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=7)
     ax.grid(alpha=0.3)
     return save_figure(fig, out_png)
-
-
-# ----------------------------------------------------------------------------- Fig. 6/7
-def _frame_index(arrays: Mapping[str, np.ndarray], frame_id: Any) -> Optional[int]:
-    ids = arrays.get("frame_ids")
-    if ids is None:
-        return None
-    hits = np.nonzero(np.asarray(ids).astype(str) == str(frame_id))[0]
-    return int(hits[0]) if len(hits) else None
-
-
-def _task_images(arrays: Mapping[str, np.ndarray], i: int, prefix: str, seg_pal: np.ndarray,
-                 bev_pal: np.ndarray) -> dict[str, Any]:
-    """Per column key -> image for one frame: ss0..3, de0..3, ls, bevp."""
-    out: dict[str, Any] = {}
-    if f"{prefix}ss" in arrays:
-        for v, img in enumerate(arrays[f"{prefix}ss"][i]):
-            out[f"ss{v}"] = colour_index(img, seg_pal)
-    if f"{prefix}de" in arrays:
-        for v, img in enumerate(arrays[f"{prefix}de"][i]):
-            out[f"de{v}"] = ("gray", np.asarray(img, np.float32).reshape(img.shape[-2:]))
-    if f"{prefix}ls" in arrays:
-        out["ls"] = topview(colour_index(arrays[f"{prefix}ls"][i], seg_pal))
-    if f"{prefix}bevp" in arrays:
-        out["bevp"] = topview(colour_masks(arrays[f"{prefix}bevp"][i], bev_pal))
-    return out
-
-
-def plot_qualitative(dataset: str, inputs: Mapping[str, np.ndarray],
-                     predictions: Mapping[str, Mapping[str, np.ndarray]], out_png: Path,
-                     frame: int = 0, models: Optional[Sequence[str]] = None, title: str = "") -> Optional[Path]:
-    """Fig. 6/7-like grid for one test frame.
-
-    Row 1 (inputs): 4 RGB views, 4 DVS views (if present), LiDAR top view (1-layer channel).
-    Row 2 (ground truth) and one row per model: SS (4 views, palette colours), DE (4 views),
-    LS, BEVP; blank where the model does not perform a task. ``inputs``: ``inputs.npz``
-    arrays; ``predictions``: model id -> ``predictions.npz`` arrays. ``frame`` indexes the
-    saved frames of ``inputs``; each model's prediction is matched by frame id.
-    """
-    if "rgb" not in inputs or len(inputs["rgb"]) == 0:
-        log.warning("%s: no saved inputs; skipping %s", dataset, out_png)
-        return None
-    n_saved = len(inputs["rgb"])
-    frame = min(max(frame, 0), n_saved - 1)
-    fid = inputs["frame_ids"][frame] if "frame_ids" in inputs else frame
-    seg_pal, bev_pal = palettes(dataset)
-    n_views = inputs["rgb"].shape[1]
-    models = list(models if models is not None else predictions.keys())
-    cols = 2 * n_views + 2
-    nrows = 2 + len(models)
-    fig, axes = plt.subplots(nrows, cols, figsize=(1.3 * cols, 1.4 * nrows), squeeze=False)
-    for ax in axes.ravel():
-        ax.set_xticks([])
-        ax.set_yticks([])
-        for sp in ax.spines.values():
-            sp.set_visible(False)
-
-    def show(ax: Any, img: Any, label: str = "") -> None:
-        if isinstance(img, tuple):
-            ax.imshow(img[1], cmap=img[0], vmin=0.0, vmax=1.0, interpolation="nearest")
-        else:
-            ax.imshow(img, interpolation="nearest")
-        if label:
-            ax.set_title(label, fontsize=7)
-
-    # inputs
-    for v in range(n_views):
-        show(axes[0, v], np.transpose(inputs["rgb"][frame, v], (1, 2, 0)), f"RGB {VIEW_NAMES[v] if v < 4 else v}")
-        if "dvs" in inputs:
-            show(axes[0, n_views + v], colour_dvs(inputs["dvs"][frame, v]), f"DVS {VIEW_NAMES[v] if v < 4 else v}")
-    if "lidar" in inputs:
-        lid = np.asarray(inputs["lidar"][frame], np.float32)
-        show(axes[0, 2 * n_views], ("gray", topview(lid[-1])), "LiDAR (top)")
-    axes[0, 0].set_ylabel("input", fontsize=8)
-
-    col_of = {**{f"ss{v}": v for v in range(n_views)}, **{f"de{v}": n_views + v for v in range(n_views)},
-              "ls": 2 * n_views, "bevp": 2 * n_views + 1}
-    titles = {**{f"ss{v}": f"SS {VIEW_NAMES[v] if v < 4 else v}" for v in range(n_views)},
-              **{f"de{v}": f"DE {VIEW_NAMES[v] if v < 4 else v}" for v in range(n_views)}, "ls": "LS", "bevp": "BEVP"}
-    rows: list[tuple[str, dict[str, Any]]] = [("ground truth", _task_images(inputs, frame, "gt_", seg_pal, bev_pal))]
-    for m in models:
-        arr = predictions.get(m)
-        idx = _frame_index(arr, fid) if arr is not None else None
-        if arr is not None and idx is None and "frame_ids" not in arr and frame < len(next(iter(arr.values()))):
-            idx = frame
-        imgs = _task_images(arr, idx, "", seg_pal, bev_pal) if arr is not None and idx is not None else {}
-        if arr is not None and idx is None:
-            log.warning("%s: frame %s not in %s's predictions", dataset, fid, m)
-        rows.append((MODEL_LABEL.get(m, m), imgs))
-    for r, (name, imgs) in enumerate(rows, start=1):
-        for key, img in imgs.items():
-            show(axes[r, col_of[key]], img, titles[key] if r == 1 else "")
-        axes[r, 0].set_ylabel(name, fontsize=8)
-    fig.suptitle(title or f"{dataset}: test frame {fid}", fontsize=9)
-    fig.tight_layout()
-    return save_figure(fig, out_png, dpi=110)

@@ -1,24 +1,34 @@
 """Table II (test comparison), Table III (efficiency) and the paper-vs-reproduced table.
 
-Every table is written as Markdown, LaTeX (booktabs) and CSV. Markdown/LaTeX show
-``mean ± variance`` rounded to 3 decimals as the paper prints them (a variance below 0.0005
-prints as ``<0.001``); the CSV holds the raw numbers (separate mean / variance columns).
+Every table is written as Markdown, LaTeX (booktabs) and CSV. Every model is trained once per
+training seed (params ``seeds``; the baselines ``baseline_seeds``), so each Table II metric is
+shown twice, each labelled:
 
-Table II rows per dataset: Chen et al., PolarNet, GradNorm, Combination, 1L, 15L, 15L+MGN.
-The combination takes GradNorm's DE/SS, PolarNet's LS and Chen et al.'s BEVP, and its TM and
-MV are computed from those four means with :mod:`compact_perception.metrics` (eq. 6-7), like
-every compact row's (its metrics file holds TM and MV of its four test-set means), so all
-rows compare with each other and with the paper.
+- ``mean ± sd``: the mean over the seeds of the run-level value (a run's test-set mean; TM and
+  MV of the run's four test-set means, eq. 6-7 via :func:`compact_perception.metrics.scores_from_means`)
+  ± the sample standard deviation (n - 1) over the seeds; with one seed the mean and ``(n=1)``;
+- ``var (frames)``: the paper's ``±`` column, the variance over test frames of the per-frame
+  score, averaged over the seeds (a variance below 0.0005 prints as ``<0.001`` as in the paper).
+
+The CSVs hold the raw numbers (``<col>_mean``, ``<col>_std``, ``<col>_var`` columns), the number
+of seeds and of test frames per row.
+
+Table II rows per dataset: Chen et al., PolarNet, GradNorm, Combination, 1L, 15L, 15L+MGN
+(Alg. 1), 15L+MGN (authors' code). The combination takes GradNorm's DE/SS, PolarNet's LS and
+Chen et al.'s BEVP of the same training seed, and its TM and MV per seed are computed from
+those four means (eq. 6-7), like every compact run's, so all rows compare with each other and
+with the paper. The paper prints one 15L+MGN row; its Table II came from the authors' public
+code, and both of this run's MGN rows are compared with it.
 
 Bold (lowest MAE / TM / MV, highest IoU) marks the best value of a column only where the
-paired bootstrap over test frames (and seeds; :mod:`compact_perception.stats`) separates it
+paired bootstrap over the seeds and test frames (:mod:`compact_perception.stats`) separates it
 from the runner-up: the 95% interval of the difference excludes 0. Otherwise the best cell
 is not bold and gets a dagger and an "inconclusive" note. The combination's task cells are
 copies of its source models' and take no part in the task columns' comparison.
 
 ``extra_metrics.{md,csv}`` holds the metrics beyond the paper's (per-class IoU / mIoU of SS,
 LS, BEVP; depth AbsRel, RMSE, delta < 1.25), from the ``class_iou`` / ``depth`` blocks of
-the metrics files.
+the metrics files, as mean ± sd over the seeds.
 """
 from __future__ import annotations
 
@@ -28,14 +38,16 @@ import logging
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Optional
+from typing import Any, Iterable, Optional, Sequence
 
+import numpy as np
 import pandas as pd
 
-from .. import io
+from .. import catalog, io
 from ..metrics import scores_from_means
 from ..stats import REPRODUCED, BootstrapResult, paired_bootstrap, stat_mean, stat_mv, stat_tm, verdict
-from .collect import COMBINATION_SOURCE, Cell, DatasetScale, ModelResult, ReportInputError, align
+from .collect import (COMBINATION_SOURCE, Cell, DatasetScale, ModelResult, ReportInputError, aggregate_cells, align,
+                      pair_by_seed)
 from .paper import PaperCell, PaperNumbers
 
 log = logging.getLogger(__name__)
@@ -43,14 +55,20 @@ log = logging.getLogger(__name__)
 TASK_COLUMNS: tuple[str, ...] = ("mae_de", "iou_ss", "iou_ls", "iou_bevp")
 TABLE2_COLUMNS: tuple[str, ...] = TASK_COLUMNS + ("tm", "mv")
 LOWER_IS_BETTER: frozenset[str] = frozenset({"mae_de", "tm", "mv"})
+#: The baselines in the paper's row order.
 BASELINES: tuple[str, ...] = ("chen_bev", "polarnet", "gradnorm_segnet")
-COMPACT: tuple[str, ...] = ("compact_1l", "compact_15l", "compact_15l_mgn")
+COMPACT: tuple[str, ...] = catalog.compact_model_ids()
 ROW_ORDER: tuple[str, ...] = BASELINES + ("combination",) + COMPACT
-ROW_LABEL: dict[str, str] = {
-    "chen_bev": "Chen et al.", "polarnet": "PolarNet", "gradnorm_segnet": "GradNorm",
-    "combination": "Combination", "compact_1l": "1L", "compact_15l": "15L", "compact_15l_mgn": "15L+MGN",
-}
-DATASET_LABEL: dict[str, str] = {"A": "Set A", "B": "Set B", "C": "Set C", "nuscenes": "nuScenes"}
+ROW_LABEL: dict[str, str] = {**{m: catalog.model_label(m) for m in catalog.model_ids()}, "combination": "Combination"}
+DATASET_LABEL: dict[str, str] = {d: catalog.DATASETS[d].label for d in catalog.dataset_ids()}
+#: The two MGN rows: Algorithm 1 as printed, and MGN as in the authors' public code.
+MGN_MODELS: tuple[str, ...] = tuple(m for m in ("compact_15l_mgn", "compact_15l_mgn_authors") if m in ROW_LABEL)
+#: The paper's Table II row a model's row is compared with (the paper prints one 15L+MGN row).
+PAPER_ROW: dict[str, str] = {"compact_15l_mgn_authors": "compact_15l_mgn"}
+MGN_NOTE = ("The paper prints one 15L+MGN row. Its Table II came from the authors' public code (SPEC 7: their "
+            "weight gradients, Huber scale and plateau rule), so both of this run's MGN rows are compared with it: "
+            "15L+MGN (Alg. 1) trains with Algorithm 1 as the paper prints it, 15L+MGN (authors' code) as the "
+            "authors' code runs it.")
 COLUMN_MD: dict[str, str] = {
     "mae_de": "MAE_DE", "iou_ss": "IoU_SS", "iou_ls": "IoU_LS", "iou_bevp": "IoU_BEVP", "tm": "TM", "mv": "MV",
 }
@@ -80,14 +98,19 @@ def fmt_var(v: Optional[float], decimals: int = DECIMALS, latex: bool = False) -
     return f"{v:.{decimals}f}"
 
 
-def fmt_cell(col: str, cell: Optional[Cell], latex: bool = False) -> str:
-    """``mean ± var`` for a task column, the mean alone for TM / MV."""
+def fmt_seeds(cell: Optional[Cell], latex: bool = False, decimals: int = DECIMALS) -> str:
+    """``mean ± sd`` over the seeds (sample sd), or ``mean (n=1)`` for a single seed."""
     if cell is None:
         return NOT_APPLICABLE
-    text = fmt_num(cell.mean)
-    if col in TASK_COLUMNS and cell.var is not None:
-        text += (" $\\pm$ " if latex else " ± ") + fmt_var(cell.var, latex=latex)
-    return text
+    text = fmt_num(cell.mean, decimals)
+    if cell.std is not None:
+        return text + (" $\\pm$ " if latex else " ± ") + fmt_num(cell.std, decimals)
+    return text + f" (n={cell.n_seeds})"
+
+
+def fmt_cell(col: str, cell: Optional[Cell], latex: bool = False) -> str:
+    """The seed cell of a column (:func:`fmt_seeds`)."""
+    return fmt_seeds(cell, latex)
 
 
 def _bold(text: str, latex: bool) -> str:
@@ -123,7 +146,8 @@ def _csv_text(header: list[str], rows: Iterable[list[Any]]) -> str:
 @dataclass
 class Table2Row:
     """One row of Table II. ``cells[col] is None``: the model does not perform that task (or
-    TM/MV do not apply); ``available`` is False when the row's inputs are missing."""
+    TM/MV do not apply); ``available`` is False when the row's inputs are missing. Every cell
+    is over the row's ``n_seeds`` runs (:class:`~.collect.Cell`)."""
 
     dataset: str
     row_id: str
@@ -133,51 +157,59 @@ class Table2Row:
     bold: set[str] = field(default_factory=set)
     #: column -> why the best value of that column is not bold (bootstrap inconclusive / untested)
     notes: dict[str, str] = field(default_factory=dict)
+    n_seeds: int = 0
+    seeds: tuple[Optional[int], ...] = ()
+    n_frames: Optional[int] = None
 
 
 def combination_row(dataset: str, results: dict[str, ModelResult]) -> Table2Row:
-    """GradNorm DE/SS + PolarNet LS + Chen BEVP; TM and MV (eq. 6-7) from those four means."""
+    """GradNorm DE/SS + PolarNet LS + Chen BEVP. Task cells: the source models' own; TM and MV
+    (eq. 6-7) per training seed from the four means of the three baselines' runs of that seed
+    (:func:`~.collect.pair_by_seed`), then mean ± sd over those seeds."""
     cells: dict[str, Optional[Cell]] = {}
     for col, src in COMBINATION_SOURCE.items():
         res = results.get(src)
         cells[col] = res.scores.get(col) if res else None
-    if all(cells[c] is not None for c in TASK_COLUMNS):
-        derived = scores_from_means({c: cells[c].mean for c in TASK_COLUMNS})  # type: ignore[union-attr]
-        cells["tm"], cells["mv"] = Cell(derived["tm"]), Cell(derived["mv"])
-    else:
-        cells["tm"] = cells["mv"] = None
     available = all(b in results for b in BASELINES)
-    if not available:
+    cells["tm"] = cells["mv"] = None
+    seeds: tuple[Optional[int], ...] = ()
+    if available:
+        sources = sorted(set(COMBINATION_SOURCE.values()))
+        groups = pair_by_seed([results[m].per_run() for m in sources], lambda r: r.seed)
+        tms, mvs = [], []
+        for group in groups:
+            run = dict(zip(sources, group))
+            means = {c: run[m].scores[c].mean for c, m in COMBINATION_SOURCE.items() if c in run[m].scores}
+            derived = scores_from_means(means)
+            if derived:
+                tms.append(Cell(derived["tm"]))
+                mvs.append(Cell(derived["mv"]))
+        if tms:
+            cells["tm"], cells["mv"] = aggregate_cells(tms), aggregate_cells(mvs)
+            seeds = tuple(g[0].seed for g in groups)
+    else:
         log.warning("%s: combination incomplete (missing %s)", dataset, [b for b in BASELINES if b not in results])
-    return Table2Row(dataset, "combination", ROW_LABEL["combination"], cells, available)
+    frames = sorted({r.n_frames for m in BASELINES if m in results for r in results[m].per_run() if r.n_frames})
+    return Table2Row(dataset, "combination", ROW_LABEL["combination"], cells, available, n_seeds=len(seeds),
+                     seeds=seeds, n_frames=frames[0] if frames else None)
 
 
 def model_row(dataset: str, model: str, result: Optional[ModelResult]) -> Table2Row:
-    """A model's row from its metrics file (all ``None`` and unavailable if there is none).
-
-    TM and MV are (re)computed from the row's four task means (eq. 6-7), exactly as for the
-    combination; a metrics file whose ``mv`` differs (an older file holding the mean of a
-    per-frame MV) is logged, and the table shows the paper's definition."""
+    """A model's row from its runs' metrics files, aggregated over seeds by
+    :func:`~.collect.aggregate_runs` (TM and MV recomputed per run from the run's four task
+    means, eq. 6-7, exactly as for the combination); all ``None`` and unavailable if there is none."""
+    label = ROW_LABEL.get(model, model)
     if result is None:
-        return Table2Row(dataset, model, ROW_LABEL[model], {c: None for c in TABLE2_COLUMNS}, available=False)
-    cells: dict[str, Optional[Cell]] = {c: result.scores.get(c) for c in TASK_COLUMNS}
-    derived = scores_from_means({c: cell.mean for c, cell in cells.items() if cell is not None})
-    for c in ("tm", "mv"):
-        s = result.scores.get(c)
-        if c in derived:
-            if s is not None and abs(s.mean - derived[c]) > 1e-9:
-                log.warning("results/%s/%s/metrics.json: %s %.6g is not eq. %s of the four means (%.6g); "
-                            "the table shows the latter (re-run evaluate)", dataset, model, c, s.mean,
-                            "6" if c == "tm" else "7", derived[c])
-            cells[c] = Cell(derived[c])
-        else:
-            cells[c] = None if s is None else Cell(s.mean)
-    return Table2Row(dataset, model, ROW_LABEL[model], cells)
+        return Table2Row(dataset, model, label, {c: None for c in TABLE2_COLUMNS}, available=False)
+    cells: dict[str, Optional[Cell]] = {c: result.scores.get(c) for c in TABLE2_COLUMNS}
+    return Table2Row(dataset, model, label, cells, n_seeds=result.n_seeds, seeds=result.seeds,
+                     n_frames=result.n_frames)
 
 
 def column_bootstrap(best: str, other: str, col: str, frames: RowFrames) -> Optional[BootstrapResult]:
-    """Paired bootstrap of "row ``best`` beats row ``other`` on column ``col``" (positive =
-    it does) from their per-frame scores; ``None`` if either has no per-frame scores for it."""
+    """Paired bootstrap (seeds, then test frames) of "row ``best`` beats row ``other`` on
+    column ``col``" (positive = it does) from their per-frame scores; ``None`` if either has no
+    per-frame scores for it."""
     cols = [col] if col in TASK_COLUMNS else list(TASK_COLUMNS)
     runs = [frames.get(best) or [], frames.get(other) or []]
     if not all(runs) or not all(all(c in df.columns for c in cols) for g in runs for df in g):
@@ -233,15 +265,20 @@ def build_table2(results: dict[str, dict[str, ModelResult]],
 
 
 def _row_texts(row: Table2Row, latex: bool) -> list[str]:
+    """Per column: the seed cell (``mean ± sd``, bold / dagger marks) and, for a task column,
+    the per-frame variance cell after it."""
     texts = []
     for col in TABLE2_COLUMNS:
-        if not row.available and row.cells.get(col) is None:
-            texts.append(NOT_AVAILABLE)
+        cell = row.cells.get(col)
+        if not row.available and cell is None:
+            texts += [NOT_AVAILABLE] * (2 if col in TASK_COLUMNS else 1)
             continue
-        t = fmt_cell(col, row.cells.get(col), latex)
+        t = fmt_seeds(cell, latex)
         if col in row.notes:
             t += "$^\\dagger$" if latex else INCONCLUSIVE_MARK
         texts.append(_bold(t, latex) if col in row.bold else t)
+        if col in TASK_COLUMNS:
+            texts.append(NOT_APPLICABLE if cell is None else (fmt_var(cell.var, latex=latex) or NOT_AVAILABLE))
     return texts
 
 
@@ -251,56 +288,104 @@ def table2_notes(tables: dict[str, list[Table2Row]]) -> list[str]:
             for ds, rows in tables.items() for c in TABLE2_COLUMNS for r in rows if c in r.notes]
 
 
+def _seed_text(seeds: Sequence[Optional[int]]) -> str:
+    ks = [k for k in seeds if k is not None]
+    return f"{len(seeds)} ({', '.join(map(str, ks))})" if ks else str(len(seeds))
+
+
+def table2_scale(tables: dict[str, list[Table2Row]]) -> str:
+    """The seeds of every row kind and the test frames of every dataset, as one sentence."""
+    seeds: dict[tuple, list[str]] = {}
+    for rows in tables.values():
+        for r in rows:
+            if r.available and r.row_id != "combination" and r.seeds:
+                key = tuple(r.seeds)
+                if r.label not in seeds.setdefault(key, []):
+                    seeds[key].append(r.label)
+    seed_txt = "; ".join(f"{', '.join(labels)}: {_seed_text(k)}" for k, labels in seeds.items()) or "none"
+    frames = []
+    for ds, rows in tables.items():
+        n = sorted({r.n_frames for r in rows if r.n_frames})
+        frames.append(f"{DATASET_LABEL.get(ds, ds)} {'/'.join(map(str, n)) or '?'}")
+    return f"Seeds (trainings) per row: {seed_txt}. Test frames per run: {', '.join(frames)}."
+
+
+def table2_caption(tables: dict[str, list[Table2Row]]) -> str:
+    return (f"{table2_scale(tables)} "
+            "Each metric column: **mean ± sd over the seeds** of the run-level value (a run's test-set mean; TM "
+            "and MV of the run's four test-set means), sd the sample standard deviation (n − 1) over the seeds; "
+            "`(n=1)`: a single seed, no sd. Each `var (frames)` column: the paper's ± (**variance over the test "
+            "frames** of the per-frame score, population), averaged over the seeds. TM = MAE_DE + Σ(1 − IoU) of "
+            "the four test-set means (eq. 6; equal to the mean of the per-frame TM); MV = population variance of "
+            "those four mean terms (eq. 7), one number per run. Combination = GradNorm (DE, SS) + PolarNet (LS) + "
+            "Chen et al. (BEVP) of the same seed, TM and MV from those four means. " + MGN_NOTE + " **Bold**: the "
+            "best value of the column (lowest MAE_DE, TM, MV; highest IoU) where a paired bootstrap over the seeds "
+            "and test frames puts the 95% interval of its difference to the runner-up above 0; "
+            f"`{INCONCLUSIVE_MARK}`: the best value, not separated from the runner-up (inconclusive, not bold). "
+            f"`{NOT_APPLICABLE}`: task not performed; `{NOT_AVAILABLE}`: no result.")
+
+
+def _t2_header(latex: bool) -> list[str]:
+    out = ["Dataset", "Model", "Seeds"]
+    for c in TABLE2_COLUMNS:
+        name = COLUMN_TEX[c] if latex else COLUMN_MD[c]
+        out.append(f"{name} (mean $\\pm$ sd)" if latex else f"{name} (mean ± sd)")
+        if c in TASK_COLUMNS:
+            out.append("var (frames)")
+    return out
+
+
 def table2_markdown(tables: dict[str, list[Table2Row]]) -> str:
-    header = ["Dataset", "Model"] + [COLUMN_MD[c] for c in TABLE2_COLUMNS]
+    header = _t2_header(False)
     body = []
     for ds, rows in tables.items():
         for i, r in enumerate(rows):
-            body.append([DATASET_LABEL.get(ds, ds) if i == 0 else "", r.label] + _row_texts(r, False))
-    note = ("\nmean ± variance over test frames. TM = MAE_DE + Σ(1 − IoU) of the four test-set means (eq. 6; "
-            "equal to the mean of the per-frame TM); MV = population variance of those four mean terms (eq. 7), one "
-            "number per row, computed the same way for every row. Combination = GradNorm (DE, SS) + PolarNet (LS) + "
-            "Chen et al. (BEVP), TM and MV from those four means. **Bold**: the best value of the column (lowest "
-            "MAE_DE, TM, MV; highest IoU) where a paired bootstrap over the test frames (and seeds) puts the 95% "
-            "interval of its difference to the runner-up above 0; "
-            f"`{INCONCLUSIVE_MARK}`: the best value, not separated from the runner-up (inconclusive, not bold). "
-            f"`{NOT_APPLICABLE}`: task not performed; `{NOT_AVAILABLE}`: no result.\n")
+            body.append([DATASET_LABEL.get(ds, ds) if i == 0 else "", r.label, str(r.n_seeds) if r.n_seeds else ""]
+                        + _row_texts(r, False))
+    note = "\n" + table2_caption(tables) + "\n"
     notes = table2_notes(tables)
     if notes:
         note += "\n" + "".join(f"- {INCONCLUSIVE_MARK} {n}\n" for n in notes)
-    return _md_table(header, body, ["---", "---"] + ["---:"] * len(TABLE2_COLUMNS)) + note
+    return _md_table(header, body, ["---", "---", "---:"] + ["---:"] * (len(header) - 3)) + note
 
 
 def table2_latex(tables: dict[str, list[Table2Row]]) -> str:
+    header = _t2_header(True)
     lines = ["% Table II (reproduced). Requires \\usepackage{booktabs}.",
-             "\\begin{tabular}{ll" + "c" * len(TABLE2_COLUMNS) + "}", "\\toprule",
-             "Dataset & Model & " + " & ".join(COLUMN_TEX[c] for c in TABLE2_COLUMNS) + " \\\\", "\\midrule"]
+             "% " + tex_escape(table2_caption(tables).replace("**", "").replace("`", "")),
+             "\\begin{tabular}{llr" + "c" * (len(header) - 3) + "}", "\\toprule",
+             " & ".join(h if "$" in h else tex_escape(h) for h in header) + " \\\\", "\\midrule"]
     for k, (ds, rows) in enumerate(tables.items()):
         if k:
             lines.append("\\midrule")
         for i, r in enumerate(rows):
             first = tex_escape(DATASET_LABEL.get(ds, ds)) if i == 0 else ""
-            lines.append(f"{first} & {tex_escape(r.label)} & " + " & ".join(_row_texts(r, True)) + " \\\\")
+            lines.append(f"{first} & {tex_escape(r.label)} & {r.n_seeds or ''} & " + " & ".join(_row_texts(r, True))
+                         + " \\\\")
     lines += ["\\bottomrule", "\\end{tabular}", ""]
     lines += [f"% $^\\dagger$ {tex_escape(n)}" for n in table2_notes(tables)]
     return "\n".join(lines) + ("\n" if table2_notes(tables) else "")
 
 
 def table2_csv(tables: dict[str, list[Table2Row]]) -> str:
-    header = ["dataset", "row_id", "label", "available"]
+    """Raw numbers: per task column ``_mean`` (over seeds), ``_std`` (sample sd over seeds,
+    empty for one seed), ``_var`` (per-frame variance, mean over seeds); ``tm``/``mv`` (mean over
+    seeds) with ``tm_std``/``mv_std``."""
+    header = ["dataset", "row_id", "label", "available", "n_seeds", "seeds", "n_test_frames"]
     for c in TASK_COLUMNS:
-        header += [f"{c}_mean", f"{c}_var"]
-    header += ["tm", "mv", "bold", "best_inconclusive"]
+        header += [f"{c}_mean", f"{c}_std", f"{c}_var"]
+    header += ["tm", "tm_std", "mv", "mv_std", "bold", "best_inconclusive"]
     body = []
     for ds, rows in tables.items():
         for r in rows:
-            line: list[Any] = [ds, r.row_id, r.label, int(r.available)]
+            line: list[Any] = [ds, r.row_id, r.label, int(r.available), r.n_seeds,
+                               ";".join("" if k is None else str(k) for k in r.seeds), r.n_frames]
             for c in TASK_COLUMNS:
                 cell = r.cells.get(c)
-                line += [None, None] if cell is None else [cell.mean, cell.var]
+                line += [None, None, None] if cell is None else [cell.mean, cell.std, cell.var]
             for c in ("tm", "mv"):
                 cell = r.cells.get(c)
-                line.append(None if cell is None else cell.mean)
+                line += [None, None] if cell is None else [cell.mean, cell.std]
             line.append(";".join(c for c in TABLE2_COLUMNS if c in r.bold))
             line.append(";".join(c for c in TABLE2_COLUMNS if c in r.notes))
             body.append(line)
@@ -466,7 +551,9 @@ def write_table3(efficiency: dict[str, Any], out_dir: Path) -> list[Path]:
 # ----------------------------------------------------------------------------- paper vs reproduced
 @dataclass
 class Comparison:
-    """One (dataset, row, column) with the paper's and this run's numbers."""
+    """One (dataset, row, column) with the paper's and this run's numbers. ``ours``: mean over
+    the seeds, ``ours_std`` the sample sd over them, ``ours_var`` the per-frame variance (mean
+    over seeds); ``paper_row`` the paper's row it is compared with."""
 
     dataset: str
     table: str
@@ -477,15 +564,20 @@ class Comparison:
     paper_var_below: bool = False
     ours: Optional[float] = None
     ours_var: Optional[float] = None
+    ours_std: Optional[float] = None
+    n_seeds: Optional[int] = None
+    paper_row: Optional[str] = None
 
 
 def compare(paper: PaperNumbers, table2: dict[str, list[Table2Row]],
             table3: Optional[dict[str, list[Table3Row]]] = None) -> list[Comparison]:
-    """Paper numbers beside this run's, for every cell either side has."""
+    """Paper numbers beside this run's, for every cell either side has. Both MGN rows are
+    compared with the paper's one 15L+MGN row (:data:`PAPER_ROW`)."""
     out: list[Comparison] = []
     for ds, rows in table2.items():
         for r in rows:
-            prow = paper.table2_row(ds, r.row_id)
+            prid = PAPER_ROW.get(r.row_id, r.row_id)
+            prow = paper.table2_row(ds, prid)
             for col in TABLE2_COLUMNS:
                 pv: Optional[float] = None
                 pc: Optional[PaperCell] = None
@@ -501,10 +593,13 @@ def compare(paper: PaperNumbers, table2: dict[str, list[Table2Row]],
                     continue
                 out.append(Comparison(ds, "II", r.row_id, col, pv, pc.var if pc else None,
                                       bool(pc.var_below) if pc else False,
-                                      cell.mean if cell else None, cell.var if cell else None))
+                                      cell.mean if cell else None, cell.var if cell else None,
+                                      cell.std if cell else None, cell.n_seeds if cell else None,
+                                      prid if prow is not None else None))
     for ds, rows3 in (table3 or {}).items():
         for r in rows3:
-            prow3 = paper.table3_row(ds, r.row_id)
+            prid = PAPER_ROW.get(r.row_id, r.row_id)
+            prow3 = paper.table3_row(ds, prid)
             if prow3 is None:
                 continue
             pairs = {
@@ -517,13 +612,19 @@ def compare(paper: PaperNumbers, table2: dict[str, list[Table2Row]],
                 if pv3 is None and ov is None:
                     continue
                 out.append(Comparison(ds, "III", r.row_id, col, None if pv3 is None else float(pv3),
-                                      ours=None if ov is None else float(ov)))
+                                      ours=None if ov is None else float(ov), paper_row=prid))
     return out
+
+
+def _join(values: Sequence[Any]) -> str:
+    vals = ["?" if v is None else str(v) for v in values]
+    return vals[0] if len(set(vals)) == 1 else "/".join(vals)
 
 
 def scale_lines(scales: dict[str, DatasetScale], paper: PaperNumbers, *, scale_name: str = "",
                 device: str = "") -> list[str]:
-    """Sentences stating this run's scale beside the paper's, per dataset."""
+    """Sentences stating this run's scale beside the paper's, per dataset: frames, test frames
+    scored, seeds and epochs run per seed."""
     t1 = paper.raw.get("text", {}).get("table1", {})
     lines = []
     if scale_name:
@@ -534,11 +635,18 @@ def scale_lines(scales: dict[str, DatasetScale], paper: PaperNumbers, *, scale_n
         counts = "/".join(str(sc.counts.get(k, "?")) for k in ("train", "val", "test")) if sc.counts else "unknown"
         pfs = t1.get("frames_per_split", {}).get(ds)
         pcounts = "/".join(str(pfs[k]) for k in ("train", "val", "test")) if pfs else "?"
-        ep = ", ".join(f"{ROW_LABEL.get(m, m)} {e.get('epochs_run')} (best {e.get('best_epoch')})"
-                       for m, e in sc.epochs.items()) or "no runs"
+        ep = "; ".join(f"{ROW_LABEL.get(m, m)} {_join([e.get('epochs_run') for e in es])} "
+                       f"(best {_join([e.get('best_epoch') for e in es])})"
+                       for m, es in sc.epochs.items()) or "no runs"
+        n_test = "/".join(map(str, sc.n_test_frames)) or "?"
+        seeds = {}
+        for m, ks in sc.seeds.items():
+            seeds.setdefault(len(ks), []).append(ROW_LABEL.get(m, m))
+        seed_txt = "; ".join(f"{n} for {', '.join(ms)}" for n, ms in sorted(seeds.items(), reverse=True)) or "?"
         lines.append(f"{DATASET_LABEL.get(ds, ds)}: source {sc.source or 'unknown'}; frames train/val/test "
-                     f"{counts} (paper {pcounts}); resolution {sc.resolution or '?'} px "
-                     f"(paper {t1.get('resolution', 128)}); epochs run (best epoch): {ep}.")
+                     f"{counts} (paper {pcounts}); test frames scored per run {n_test}; seeds (trainings) "
+                     f"{seed_txt}; resolution {sc.resolution or '?'} px (paper {t1.get('resolution', 128)}); "
+                     f"epochs run (best epoch), per seed: {ep}.")
     return lines
 
 
@@ -557,8 +665,15 @@ def _cmp_text(v: Optional[float], var: Optional[float] = None, below: bool = Fal
     return t
 
 
+def _ours_text(c: Comparison, latex: bool = False) -> str:
+    """Table II: mean ± sd over seeds (``(n=1)`` for one seed); Table III: the number."""
+    if c.table != "II" or c.ours is None:
+        return _cmp_text(c.ours, col=c.column, latex=latex)
+    return fmt_seeds(Cell(c.ours, c.ours_var, c.ours_std, c.n_seeds or 1), latex)
+
+
 def _diff(c: Comparison) -> str:
-    """Table II: this run minus the paper; Table III: ratio this run / paper."""
+    """Table II: this run (mean over seeds) minus the paper; Table III: ratio this run / paper."""
     if c.paper is None or c.ours is None:
         return ""
     if c.table == "III":
@@ -566,40 +681,57 @@ def _diff(c: Comparison) -> str:
     return f"{c.ours - c.paper:+.3f}"
 
 
+def _cmp_label(c: Comparison) -> str:
+    label = ROW_LABEL.get(c.row_id, c.row_id)
+    if c.paper_row and c.paper_row != c.row_id:
+        label += f" (paper: {ROW_LABEL.get(c.paper_row, c.paper_row).split(' (')[0]})"
+    return label
+
+
+CMP_NOTE = ("Paper: Table II cells mean ± variance over test frames as printed. This run: **mean ± sd over the "
+            "seeds** (sample sd, n − 1; `(n=1)` for one seed) of the run-level value, and separately the **variance "
+            "over test frames** (mean over the seeds), the paper's ± column. The paper's combination TM/MV are "
+            "printed on its PolarNet line; its combination task cells are the baselines' own. " + MGN_NOTE +
+            " Table III: paper memory is 'GPU usage' on an NVIDIA GTX 1080 Ti (probably including the CUDA "
+            "context); sizes in MB.")
+
+
 def comparison_markdown(rows: list[Comparison], lines: list[str]) -> str:
     head = "\n".join(f"- {s}" for s in lines) + "\n\n" if lines else ""
-    body = [[DATASET_LABEL.get(c.dataset, c.dataset), c.table, ROW_LABEL.get(c.row_id, c.row_id),
+    body = [[DATASET_LABEL.get(c.dataset, c.dataset), c.table, _cmp_label(c),
              COLUMN_MD.get(c.column, c.column), _cmp_text(c.paper, c.paper_var, c.paper_var_below, c.column),
-             _cmp_text(c.ours, c.ours_var, False, c.column),
+             _ours_text(c), "" if c.table != "II" or c.ours_var is None else fmt_var(c.ours_var),
              _diff(c)]
             for c in rows]
-    note = ("\nTable II cells: mean ± variance over test frames. The paper's combination TM/MV are printed on "
-            "its PolarNet line; its combination task cells are the baselines' own. Table III: paper memory is "
-            "'GPU usage' on an NVIDIA GTX 1080 Ti (probably including the CUDA context); sizes in MB.\n")
-    return head + _md_table(["Dataset", "Table", "Model", "Metric", "Paper", "This run", "Diff (II: -, III: ratio)"], body,
-                            ["---"] * 4 + ["---:"] * 3) + note
+    header = ["Dataset", "Table", "Model", "Metric", "Paper (mean ± var frames)", "This run (mean ± sd over seeds)",
+              "This run: var (frames)", "Diff (II: -, III: ratio)"]
+    return head + _md_table(header, body, ["---"] * 4 + ["---:"] * 4) + "\n" + CMP_NOTE + "\n"
 
 
 def comparison_latex(rows: list[Comparison], lines: list[str]) -> str:
     out = ["% Paper vs reproduced. Requires \\usepackage{booktabs}."] + [f"% {tex_escape(s)}" for s in lines]
-    out += ["\\begin{tabular}{llllrrr}", "\\toprule",
-            "Dataset & Table & Model & Metric & Paper & This run & Diff \\\\", "\\midrule"]
+    out += [f"% {tex_escape(CMP_NOTE.replace('**', ''))}"]
+    out += ["\\begin{tabular}{llllrrrr}", "\\toprule",
+            "Dataset & Table & Model & Metric & Paper (mean $\\pm$ var frames) & This run (mean $\\pm$ sd seeds) "
+            "& This run var (frames) & Diff \\\\", "\\midrule"]
     for c in rows:
         diff = _diff(c).replace("x", "$\\times$")
         out.append(" & ".join([tex_escape(DATASET_LABEL.get(c.dataset, c.dataset)), c.table,
-                               tex_escape(ROW_LABEL.get(c.row_id, c.row_id)),
+                               tex_escape(_cmp_label(c)),
                                COLUMN_TEX.get(c.column, tex_escape(c.column)),
                                _cmp_text(c.paper, c.paper_var, c.paper_var_below, c.column, True).replace(",", "{,}"),
-                               _cmp_text(c.ours, c.ours_var, False, c.column, True).replace(",", "{,}"), diff]) + " \\\\")
+                               _ours_text(c, True).replace(",", "{,}"),
+                               "" if c.table != "II" or c.ours_var is None else fmt_var(c.ours_var, latex=True),
+                               diff]) + " \\\\")
     out += ["\\bottomrule", "\\end{tabular}", ""]
     return "\n".join(out)
 
 
 def comparison_csv(rows: list[Comparison]) -> str:
-    header = ["dataset", "table", "row_id", "column", "paper", "paper_var", "paper_var_below", "reproduced",
-              "reproduced_var"]
-    return _csv_text(header, [[c.dataset, c.table, c.row_id, c.column, c.paper, c.paper_var,
-                               int(c.paper_var_below), c.ours, c.ours_var] for c in rows])
+    header = ["dataset", "table", "row_id", "paper_row", "column", "paper", "paper_var", "paper_var_below",
+              "reproduced", "reproduced_std", "reproduced_var", "n_seeds"]
+    return _csv_text(header, [[c.dataset, c.table, c.row_id, c.paper_row, c.column, c.paper, c.paper_var,
+                               int(c.paper_var_below), c.ours, c.ours_std, c.ours_var, c.n_seeds] for c in rows])
 
 
 def write_comparison(paper: PaperNumbers, table2: dict[str, list[Table2Row]],
@@ -618,16 +750,18 @@ EXTRA_MD: dict[str, str] = {"ss": "mIoU_SS", "ls": "mIoU_LS", "bevp": "mIoU_BEVP
 
 @dataclass
 class ExtraRow:
-    """One model's metrics beyond the paper's: mIoU (and classes counted) per segmentation
-    task; depth errors as (mean, variance over frames)."""
+    """One model's metrics beyond the paper's, over its seeds: mIoU per segmentation task
+    (mean ± sd over seeds, and the classes counted per seed); per-class IoU (mean over the seeds
+    where the class has one); depth errors (mean ± sd over seeds, per-frame variance mean over seeds)."""
 
     dataset: str
     row_id: str
     label: str
-    miou: dict[str, Optional[float]] = field(default_factory=dict)
-    n_classes: dict[str, int] = field(default_factory=dict)
+    miou: dict[str, Optional[Cell]] = field(default_factory=dict)
+    n_classes: dict[str, tuple[int, ...]] = field(default_factory=dict)
     per_class: dict[str, dict[str, Optional[float]]] = field(default_factory=dict)
     depth: dict[str, Optional[Cell]] = field(default_factory=dict)
+    n_seeds: int = 1
 
 
 def _opt_float(v: Any, where: str) -> Optional[float]:
@@ -638,31 +772,49 @@ def _opt_float(v: Any, where: str) -> Optional[float]:
     return float(v)
 
 
+def _where(r: ModelResult) -> str:
+    return f"results/{r.dataset}/{r.model}" + ("" if r.seed is None else f"/seed{r.seed}") + "/metrics.json"
+
+
 def build_extra_rows(results: dict[str, dict[str, ModelResult]]) -> list[ExtraRow]:
     """Rows (dataset order, then :data:`ROW_ORDER`) of the models whose metrics files carry a
-    ``class_iou`` or ``depth`` block."""
+    ``class_iou`` or ``depth`` block, aggregated over the model's runs (seeds)."""
     out: list[ExtraRow] = []
     for ds, res in results.items():
         for rid in ROW_ORDER:
-            r = res.get(rid)
-            if r is None or not r.extra:
+            agg = res.get(rid)
+            if agg is None:
                 continue
-            where = f"results/{ds}/{rid}/metrics.json"
-            row = ExtraRow(ds, rid, ROW_LABEL.get(rid, rid))
+            runs = [r for r in agg.per_run() if r.extra]
+            if not runs:
+                continue
+            row = ExtraRow(ds, rid, ROW_LABEL.get(rid, rid), n_seeds=len(runs))
             for t in EXTRA_TASKS:
-                blk = (r.extra.get("class_iou") or {}).get(t)
-                if not isinstance(blk, dict):
+                blks = [((r.extra.get("class_iou") or {}).get(t), _where(r)) for r in runs]
+                blks = [(b, w) for b, w in blks if isinstance(b, dict)]
+                if not blks:
                     continue
-                row.miou[t] = _opt_float(blk.get("miou"), f"{where}: class_iou.{t}.miou")
-                row.n_classes[t] = int(blk.get("n_classes_in_miou") or 0)
-                row.per_class[t] = {str(k): _opt_float(v, f"{where}: class_iou.{t}.classes.{k}")
-                                    for k, v in (blk.get("classes") or {}).items()}
-            dep = r.extra.get("depth") or {}
+                mious = [_opt_float(b.get("miou"), f"{w}: class_iou.{t}.miou") for b, w in blks]
+                vals = [v for v in mious if v is not None]
+                row.miou[t] = aggregate_cells([Cell(v) for v in vals]) if vals else None
+                row.n_classes[t] = tuple(int(b.get("n_classes_in_miou") or 0) for b, _ in blks)
+                classes: dict[str, list[float]] = {}
+                for b, w in blks:
+                    for k, v in (b.get("classes") or {}).items():
+                        fv = _opt_float(v, f"{w}: class_iou.{t}.classes.{k}")
+                        classes.setdefault(str(k), [])
+                        if fv is not None:
+                            classes[str(k)].append(fv)
+                row.per_class[t] = {k: (float(np.mean(v)) if v else None) for k, v in classes.items()}
             for k in EXTRA_DEPTH:
-                v = dep.get(k)
-                mean = _opt_float(v.get("mean"), f"{where}: depth.{k}.mean") if isinstance(v, dict) else None
-                if mean is not None:
-                    row.depth[k] = Cell(mean, _opt_float(v.get("var"), f"{where}: depth.{k}.var"))
+                cells = []
+                for r in runs:
+                    v = (r.extra.get("depth") or {}).get(k)
+                    mean = _opt_float(v.get("mean"), f"{_where(r)}: depth.{k}.mean") if isinstance(v, dict) else None
+                    if mean is not None:
+                        cells.append(Cell(mean, _opt_float(v.get("var"), f"{_where(r)}: depth.{k}.var")))
+                if cells:
+                    row.depth[k] = aggregate_cells(cells)
             out.append(row)
     return out
 
@@ -673,57 +825,68 @@ def _extra_texts(r: ExtraRow) -> list[str]:
         if t not in r.miou:
             texts.append(NOT_APPLICABLE)
         else:
-            v = r.miou[t]
-            texts.append(NOT_AVAILABLE if v is None else f"{v:.3f} ({r.n_classes[t]})")
+            c = r.miou[t]
+            n = r.n_classes[t]
+            ncls = str(n[0]) if len(set(n)) == 1 else "/".join(map(str, n))
+            texts.append(NOT_AVAILABLE if c is None else f"{fmt_seeds(c)} ({ncls} cl.)")
     for k in EXTRA_DEPTH:
         c = r.depth.get(k)
         if c is None:
-            texts.append(NOT_APPLICABLE)
+            texts += [NOT_APPLICABLE, NOT_APPLICABLE]
         else:
             nd = 2 if k == "rmse_m" else 3
-            texts.append(f"{c.mean:.{nd}f}" + ("" if c.var is None else f" ± {c.var:.{nd}f}"))
+            texts += [fmt_seeds(c, decimals=nd), "" if c.var is None else f"{c.var:.{nd}f}"]
     return texts
 
 
 def extra_markdown(rows: list[ExtraRow]) -> str:
-    header = ["Dataset", "Model"] + [EXTRA_MD[c] for c in EXTRA_TASKS + EXTRA_DEPTH]
+    header = ["Dataset", "Model", "Seeds"] + [f"{EXTRA_MD[c]} (mean ± sd)" for c in EXTRA_TASKS]
+    for k in EXTRA_DEPTH:
+        header += [f"{EXTRA_MD[k]} (mean ± sd)", "var (frames)"]
     body, last = [], None
     for r in rows:
-        body.append([DATASET_LABEL.get(r.dataset, r.dataset) if r.dataset != last else "", r.label] + _extra_texts(r))
+        body.append([DATASET_LABEL.get(r.dataset, r.dataset) if r.dataset != last else "", r.label, str(r.n_seeds)]
+                    + _extra_texts(r))
         last = r.dataset
     note = ("\nMetrics the field reports, beside the paper's (not in the paper; Table II's columns are unchanged). "
-            "mIoU: per-class IoU = TP / (TP + FP + FN) from counts summed over all test frames, averaged over the "
-            "classes present; in brackets the number of classes counted: a class absent from both prediction and "
-            "ground truth has no IoU and is left out. SS and LS: predicted class = arg-max, pixels without a label "
-            "left out; BEVP: each class a binary mask (> 0.5). Depth: metric depth d = 1000 m · exp((x − 1) · 5.70378) "
-            "decoded from the cache's CARLA log depth x ∈ [0, 1] (the world's and the nuScenes ingest's encoding; "
-            "prediction clamped to [0, 1], i.e. 3.33 m to 1000 m); pixels with ground truth x = 0 (no depth) or "
-            "x = 1 (1000 m far clip, sky) left out; AbsRel, RMSE and δ<1.25 per frame over the valid pixels of the "
-            "four views, shown as mean ± variance over frames. Per-class IoUs: `extra_metrics_per_class.csv`. "
-            f"`{NOT_APPLICABLE}`: task not performed; `{NOT_AVAILABLE}`: no class present.\n")
-    return _md_table(header, body, ["---", "---"] + ["---:"] * (len(header) - 2)) + note
+            "Every value: **mean ± sd over the seeds** (sample sd, n − 1; `(n=1)`: one seed) of the run-level value; "
+            "depth also the **variance over test frames** (mean over the seeds). "
+            "mIoU: per-class IoU = TP / (TP + FP + FN) from counts summed over all test frames of a run, averaged over "
+            "the classes present; `cl.`: the number of classes counted (per seed where they differ): a class absent "
+            "from both prediction and ground truth has no IoU and is left out. SS and LS: predicted class = arg-max, "
+            "pixels without a label left out; BEVP: each class a binary mask (> 0.5). Depth: metric depth "
+            "d = 1000 m · exp((x − 1) · 5.70378) decoded from the cache's CARLA log depth x ∈ [0, 1] (the world's and "
+            "the nuScenes ingest's encoding; prediction clamped to [0, 1], i.e. 3.33 m to 1000 m); pixels with ground "
+            "truth x = 0 (no depth) or x = 1 (1000 m far clip, sky) left out; AbsRel, RMSE and δ<1.25 per frame over "
+            "the valid pixels of the four views. Per-class IoUs (mean over the seeds where the class has one): "
+            f"`extra_metrics_per_class.csv`. `{NOT_APPLICABLE}`: task not performed; `{NOT_AVAILABLE}`: no class "
+            "present.\n")
+    return _md_table(header, body, ["---", "---", "---:"] + ["---:"] * (len(header) - 3)) + note
 
 
 def extra_csv(rows: list[ExtraRow]) -> str:
-    header = ["dataset", "row_id", "label"]
-    header += [f"miou_{t}" for t in EXTRA_TASKS] + [f"n_classes_{t}" for t in EXTRA_TASKS]
+    header = ["dataset", "row_id", "label", "n_seeds"]
+    header += [f"miou_{t}" for t in EXTRA_TASKS] + [f"miou_{t}_std" for t in EXTRA_TASKS]
+    header += [f"n_classes_{t}" for t in EXTRA_TASKS]
     for k in EXTRA_DEPTH:
-        header += [f"{k}_mean", f"{k}_var"]
+        header += [f"{k}_mean", f"{k}_std", f"{k}_var"]
     body = []
     for r in rows:
-        line: list[Any] = [r.dataset, r.row_id, r.label]
-        line += [r.miou.get(t) for t in EXTRA_TASKS] + [r.n_classes.get(t) for t in EXTRA_TASKS]
+        line: list[Any] = [r.dataset, r.row_id, r.label, r.n_seeds]
+        line += [None if r.miou.get(t) is None else r.miou[t].mean for t in EXTRA_TASKS]  # type: ignore[union-attr]
+        line += [None if r.miou.get(t) is None else r.miou[t].std for t in EXTRA_TASKS]  # type: ignore[union-attr]
+        line += [";".join(map(str, r.n_classes[t])) if t in r.n_classes else None for t in EXTRA_TASKS]
         for k in EXTRA_DEPTH:
             c = r.depth.get(k)
-            line += [None, None] if c is None else [c.mean, c.var]
+            line += [None, None, None] if c is None else [c.mean, c.std, c.var]
         body.append(line)
     return _csv_text(header, body)
 
 
 def extra_per_class_csv(rows: list[ExtraRow]) -> str:
-    body = [[r.dataset, r.row_id, t, i, name, v] for r in rows for t in EXTRA_TASKS
+    body = [[r.dataset, r.row_id, t, i, name, v, r.n_seeds] for r in rows for t in EXTRA_TASKS
             for i, (name, v) in enumerate((r.per_class.get(t) or {}).items())]
-    return _csv_text(["dataset", "row_id", "task", "class_index", "class", "iou"], body)
+    return _csv_text(["dataset", "row_id", "task", "class_index", "class", "iou", "n_seeds"], body)
 
 
 def write_extra_metrics(results: dict[str, dict[str, ModelResult]], out_dir: Path) -> list[Path]:

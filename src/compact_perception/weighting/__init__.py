@@ -1,7 +1,14 @@
-"""Loss weighting: static weights, MGN (paper section III-C, Algorithm 1), original GradNorm.
+"""Loss weighting: static weights, MGN (paper section III-C, Algorithm 1), original GradNorm, and
+the loss-balancing study's methods: uncertainty weighting, DWA, PCGrad, CAGrad.
 
-Registry ``WEIGHTINGS`` keyed by ``ModelRecipe.weighting``: ``static``, ``none``, ``mgn``,
-``gradnorm``; build one with :func:`build_weighting`.
+Registry ``WEIGHTINGS`` (classes, each registered by ``@register("id")`` in its own module; this
+package imports every module, so a new method is one new file plus its params.yaml entry) keyed by
+``ModelRecipe.weighting``: ``static``, ``none``, ``mgn``,
+``gradnorm``, ``uw`` (Kendall et al. 2018), ``dwa`` (Liu et al. 2019), ``pcgrad`` (Yu et al.
+2020), ``cagrad`` (Liu et al. 2021), ``single`` (one-hot weights: the study's single-task
+reference); build one with :func:`build_weighting`. Each class has a
+``label`` and a ``params_model`` (the schema of its recipe section, named like its id, e.g.
+``uw: {lr: ...}``; ``None`` for static / none).
 
 Interface (:class:`~.base.LossWeighting`)
 ----------------------------------------
@@ -9,23 +16,32 @@ Interface (:class:`~.base.LossWeighting`)
   task -> float.
 - ``total(losses) -> Tensor``: eq. (8), ``sum_i w_i L_i`` with the weights as constants (detached);
   keys of ``losses`` that are not tasks (e.g. ``aux_*``) are added with weight 1.
+- ``backward(losses, model, scale) -> Tensor``: backpropagates the step into the network's
+  ``.grad`` and returns the (detached) total loss for logging. Default:
+  ``scale(total(losses)).backward()``. ``scale`` is the trainer's ``GradScaler.scale`` (identity
+  when loss scaling is off). Gradient-surgery methods (pcgrad, cagrad) override it: T per-task
+  ``torch.autograd.grad`` passes, then the combined gradient is *added* to ``.grad`` (set when
+  it is ``None``); uw overrides it to also step its log-variances.
 - ``before_backward(step, n_steps, losses, model) -> None``
 - ``on_epoch_end(improved: bool) -> None``: ``improved`` = this epoch's validation TM dropped;
   plateau halving of the weight lr (MGN) after ``plateau_patience`` epochs without a drop,
   ``lr <- max(lr * plateau_factor, lr_min)``.
-- ``state_dict() / load_state_dict(state)``: everything needed to resume (weights, lr, plateau
-  count, L_i(0), optimizer state); plain Python/tensors, ``torch.save``-able.
-- ``log_values() -> dict[str, float]``: ``w_<task>`` for every task and ``lr_w`` (adaptive ones).
+- ``state_dict() / load_state_dict(state)``: everything needed to resume bit-identically (weights,
+  lr, plateau count, L_i(0), optimizer states, uw's s, dwa's epoch sums and means, pcgrad's
+  generator state); plain Python/tensors, ``torch.save``-able.
+- ``log_values() -> dict[str, float]``: ``w_<task>`` for every task, ``lr_w`` (MGN, GradNorm),
+  ``conflicts`` (PCGrad).
 
 Step protocol (trainer, every training step; ``step`` counts 0..n_steps-1 within the epoch)::
 
+    optimizer.zero_grad(set_to_none=True)  # before the forward: MGN's authors_mode writes .grad
+                                           # in before_backward
     outputs = model(batch)
     losses = model.compute_losses(outputs, batch)          # task -> scalar (+ aux_* keys)
+    weighting.grad_scale = scaler.get_scale()              # 1.0 without loss scaling
     weighting.before_backward(step, n_steps, losses, model)
-    optimizer.zero_grad()   # may also come before before_backward: in the default mode
-                            # before_backward writes no .grad (authors_mode does, so zero first)
-    weighting.total(losses).backward()                     # uses the (possibly updated) w
-    optimizer.step()
+    total = weighting.backward(losses, model, scaler.scale)  # uses the (possibly updated) w
+    scaler.unscale_(optimizer); scaler.step(optimizer); scaler.update()
     ... after validation: weighting.on_epoch_end(improved)
 
 - static / none: every hook is a no-op (w = 1).
@@ -35,41 +51,68 @@ Step protocol (trainer, every training step; ``step`` counts 0..n_steps-1 within
   ``authors_mode`` (MgnParams): second-order terms of L_MGN are accumulated into the network
   ``.grad`` and w also gets ``dL_total/dw`` (see :class:`~.mgn.MGNWeighting`).
 - gradnorm: L_i(0) from the very first step; one update of w at every step (Adam).
+- uw: ``sum_i exp(-s_i) L_i + s_i``; ``backward`` also takes one Adam step on s; w = exp(-s).
+- dwa: ``before_backward`` sums the task losses, ``on_epoch_end`` sets w from the last two
+  epochs' means (w = 1 in the first two epochs).
+- pcgrad / cagrad: everything happens in ``backward`` (T backward passes per step); pcgrad's w
+  stays 1, cagrad's w are the effective weights of its direction d on the shared parameters.
 
-Non-positive weights: after a step, ``w <- max(w, 1e-3 T)`` before eq. (15) renormalisation,
+Non-positive weights (MGN, GradNorm): after a step, ``w <- max(w, 1e-3 T)`` before eq. (15) renormalisation,
 so every weight stays strictly positive and sum w = T (see :class:`~.mgn.GradNormCore`).
 """
 from __future__ import annotations
 
-from typing import Any, Callable, Sequence
+import importlib
+import pkgutil
+from typing import Any, Sequence
 
 from torch import nn
 
 from ..config import ModelRecipe
-from ..registry import Registry
-from .base import LossWeighting, shared_weights
-from .gradnorm import GradNormWeighting
-from .mgn import GradNormCore, MGNWeighting
-from .static import NoWeighting, StaticWeighting
+from .base import WEIGHTINGS, LossWeighting, register, shared_weights
+
+# Every module of this package registers its classes (``@register("id")``) on import; importing
+# them all here means a new method is one new file, found without editing this one.
+for _mod in sorted(m.name for m in pkgutil.iter_modules(__path__)):
+    importlib.import_module(f"{__name__}.{_mod}")
+
+from .cagrad import CAGradParams, CAGradWeighting  # noqa: E402
+from .dwa import DWAParams, DWAWeighting  # noqa: E402
+from .gradnorm import GradNormWeighting  # noqa: E402
+from .mgn import GradNormCore, MGNWeighting  # noqa: E402
+from .pcgrad import PCGradParams, PCGradWeighting  # noqa: E402
+from .single import SingleTaskParams, SingleTaskWeighting  # noqa: E402
+from .static import NoWeighting, StaticWeighting  # noqa: E402
+from .uw import UncertaintyWeighting, UWParams  # noqa: E402
 
 __all__ = [
     "WEIGHTINGS",
+    "register",
     "build_weighting",
+    "weighting_class",
     "LossWeighting",
     "StaticWeighting",
     "NoWeighting",
     "MGNWeighting",
     "GradNormWeighting",
     "GradNormCore",
+    "UncertaintyWeighting",
+    "UWParams",
+    "DWAWeighting",
+    "DWAParams",
+    "PCGradWeighting",
+    "PCGradParams",
+    "CAGradWeighting",
+    "CAGradParams",
+    "SingleTaskWeighting",
+    "SingleTaskParams",
     "shared_weights",
 ]
 
-WeightingFactory = Callable[..., LossWeighting]
-WEIGHTINGS: Registry[WeightingFactory] = Registry("loss weighting")
-WEIGHTINGS.register("static")(StaticWeighting.from_recipe)
-WEIGHTINGS.register("none")(NoWeighting.from_recipe)
-WEIGHTINGS.register("mgn")(MGNWeighting.from_recipe)
-WEIGHTINGS.register("gradnorm")(GradNormWeighting.from_recipe)
+
+def weighting_class(key: str) -> type[LossWeighting]:
+    """The class registered as ``key`` (its ``label``, ``params_model`` and ``from_recipe``)."""
+    return WEIGHTINGS[key]
 
 
 def build_weighting(
@@ -77,11 +120,13 @@ def build_weighting(
     tasks: Sequence[str],
     model: nn.Module | None = None,
     *,
-    plateau_patience: int = 4,
-    plateau_factor: float = 0.5,
+    plateau_patience: int,
+    plateau_factor: float,
 ) -> LossWeighting:
     """The weighting named by ``recipe.weighting`` for ``tasks``; adaptive ones read W's module
     names from ``model.shared_layers()`` (now if ``model`` is given, else at the first update).
-    ``plateau_patience``/``plateau_factor``: TrainParams' values, for MGN's weight-lr halving."""
-    kw: dict[str, Any] = {"plateau_patience": plateau_patience, "plateau_factor": plateau_factor}
-    return WEIGHTINGS[recipe.weighting](recipe, tuple(tasks), model, **kw)
+    ``plateau_patience``/``plateau_factor``: TrainParams' values and ``recipe.plateau_rule``, for
+    MGN's weight-lr halving."""
+    kw: dict[str, Any] = {"plateau_patience": plateau_patience, "plateau_factor": plateau_factor,
+                          "plateau_rule": recipe.plateau_rule}
+    return WEIGHTINGS[recipe.weighting].from_recipe(recipe, tuple(tasks), model, **kw)

@@ -1,12 +1,15 @@
 """The loss-weighting interface (see the package docstring for the step protocol)."""
 from __future__ import annotations
 
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable, ClassVar, Mapping, Sequence
 
 import torch
 from torch import Tensor, nn
 
-__all__ = ["LossWeighting", "shared_weights"]
+from ..config import Strict
+from ..registry import Registry
+
+__all__ = ["LossWeighting", "WEIGHTINGS", "register", "recipe_params", "shared_weights"]
 
 
 class LossWeighting:
@@ -19,8 +22,14 @@ class LossWeighting:
     before every :meth:`before_backward`; 1.0 = no scaling, the default). Weightings that take
     gradients of the losses themselves (GradNorm, MGN) scale by it and unscale their result,
     so float16 gradients do not underflow (:mod:`compact_perception.precision`).
+
+    Every concrete class declares ``label`` (its name in the report) and ``params_model`` (the
+    pydantic schema of its recipe section, named like its registry id; ``None`` when it has no
+    settings).
     """
 
+    label: ClassVar[str]
+    params_model: ClassVar[type | None]
     grad_scale: float = 1.0
 
     def __init__(
@@ -28,8 +37,8 @@ class LossWeighting:
         tasks: Sequence[str],
         weights: Mapping[str, float] | None = None,
         *,
-        plateau_patience: int = 4,
-        plateau_factor: float = 0.5,
+        plateau_patience: int,
+        plateau_factor: float,
     ) -> None:
         if not tasks:
             raise ValueError("a loss weighting needs at least one task")
@@ -110,6 +119,17 @@ class LossWeighting:
         return {f"w_{t}": v for t, v in self.weights.items()}
 
 
+# Every weighting class registers itself under its params.yaml id (``ModelRecipe.weighting``) with
+# ``@register("id")``; the package imports every module of this folder, so a new method is one
+# new file (plus its params.yaml entry).
+WEIGHTINGS: Registry[type[LossWeighting]] = Registry("loss weighting")
+
+
+def register(key: str) -> Callable[[type[LossWeighting]], type[LossWeighting]]:
+    """Class decorator: ``@register("uw")`` makes the class the weighting ``uw`` of params.yaml."""
+    return WEIGHTINGS.register(key)
+
+
 def shared_weights(model: nn.Module, names: Sequence[str]) -> list[nn.Parameter]:
     """The weights W of the modules ``names`` (``model.get_submodule``): every parameter called
     ``weight`` inside them (conv kernels / linear matrices; biases excluded), or all of a module's
@@ -127,3 +147,16 @@ def shared_weights(model: nn.Module, names: Sequence[str]) -> list[nn.Parameter]
                 seen.add(id(p))
                 params.append(p)
     return params
+
+
+def recipe_params(recipe: Any, name: str, schema: type[Strict]) -> Any:
+    """The weighting section ``name`` of a recipe (``ModelRecipe.section``), validated by
+    ``schema``; a clear error when the recipe has none."""
+    raw = recipe.section(name) if hasattr(recipe, "section") else getattr(recipe, name, None)
+    if isinstance(raw, schema):
+        return raw
+    if hasattr(raw, "model_dump"):
+        raw = raw.model_dump()
+    if not raw:
+        raise ValueError(f"weighting {name!r} needs a {name!r} section in the recipe")
+    return schema.model_validate(raw)

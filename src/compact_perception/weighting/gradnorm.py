@@ -6,12 +6,14 @@ from typing import Any, Literal, Mapping, Sequence
 import torch
 from torch import Tensor, nn
 
-from ..config import ModelRecipe
+from ..config import GradNormParams, ModelRecipe
+from .base import register
 from .mgn import GradNormCore
 
 __all__ = ["GradNormWeighting"]
 
 
+@register("gradnorm")
 class GradNormWeighting(GradNormCore):
     """GradNorm: L_i(0) from the very first training step (kept across epochs, saved in the
     state); w updated at EVERY step (including the first, where r_i = 1) with its own optimizer
@@ -20,9 +22,11 @@ class GradNormWeighting(GradNormCore):
     (the last shared layer for the GradNorm-SegNet baseline). The weight lr is constant
     (``on_epoch_end`` only counts bad epochs), as in the original algorithm."""
 
+    label = "GradNorm (Chen et al. 2018)"
+    params_model = GradNormParams
+
     def __init__(self, tasks: Sequence[str], shared: Mapping[str, Sequence[str]] | None = None, *,
-                 optimizer: Literal["adam", "sgd"] = "adam", alpha: float = 1.5, lr: float = 0.025,
-                 **kw: Any) -> None:
+                 alpha: float, lr: float, optimizer: Literal["adam", "sgd"] = "adam", **kw: Any) -> None:
         super().__init__(tasks, shared, alpha=alpha, lr=lr, lr_min=lr, **kw)
         self.optimizer_name = optimizer
         self._param = torch.nn.Parameter(self.w.clone())

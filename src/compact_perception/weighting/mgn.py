@@ -10,8 +10,9 @@ from typing import Any, Mapping, Sequence
 import torch
 from torch import Tensor, nn
 
-from ..config import ModelRecipe
-from .base import LossWeighting, shared_weights
+from ..config import MgnParams, ModelRecipe
+from ..schedule import PlateauRule, plateau_due
+from .base import LossWeighting, register, shared_weights
 
 __all__ = ["GradNormCore", "MGNWeighting", "full_precision"]
 
@@ -65,14 +66,16 @@ class GradNormCore(LossWeighting):
         tasks: Sequence[str],
         shared: Mapping[str, Sequence[str]] | None = None,
         *,
-        alpha: float = 1.5,
-        lr: float = 0.1,
-        lr_min: float = 1e-4,
+        alpha: float,
+        lr: float,
+        lr_min: float,
+        plateau_patience: int,
+        plateau_factor: float,
+        plateau_rule: PlateauRule,
         min_weight_ratio: float = 1e-3,
-        plateau_patience: int = 4,
-        plateau_factor: float = 0.5,
     ) -> None:
         super().__init__(tasks, plateau_patience=plateau_patience, plateau_factor=plateau_factor)
+        self.plateau_rule: PlateauRule = plateau_rule
         self.shared: dict[str, list[str]] | None = (
             {t: list(shared[t]) for t in self.tasks} if shared is not None else None
         )
@@ -155,13 +158,16 @@ class GradNormCore(LossWeighting):
 
     # ------------------------------------------------------------------ plateau / state
     def on_epoch_end(self, improved: bool) -> None:
-        """Plateau halving of the weight lr: after ``plateau_patience`` epochs in a row without a
-        drop of the validation TM, ``lr <- max(lr * factor, lr_min)`` (and the count restarts)."""
+        """Plateau halving of the weight lr, "like the main lr" (SPEC 7): ``improved`` is the
+        trainer's plateau verdict for this epoch; once ``plateau_rule`` calls for a reduction
+        (:func:`~compact_perception.schedule.plateau_due`: ``plateau_patience`` epochs without a
+        drop, or more than that for the 'torch' rule), ``lr <- max(lr * factor, lr_min)`` and the
+        count restarts."""
         if improved:
             self.bad_epochs = 0
             return
         self.bad_epochs += 1
-        if self.bad_epochs >= self.plateau_patience:
+        if plateau_due(self.bad_epochs, self.plateau_patience, self.plateau_rule):
             self.lr = max(self.lr * self.plateau_factor, self.lr_min)
             self.bad_epochs = 0
 
@@ -184,6 +190,7 @@ class GradNormCore(LossWeighting):
         return out
 
 
+@register("mgn")
 class MGNWeighting(GradNormCore):
     """MGN (Algorithm 1): L_i(0) recorded at step 0 of every epoch; one update of w at the last
     step of the epoch (``step == n_steps - 1``; with ``n_steps == 1`` that is the same step), by
@@ -198,6 +205,9 @@ class MGNWeighting(GradNormCore):
     ``dL_total/dw_i = L_i`` (eq. 8; added analytically, which equals what a non-detached w in
     ``total()`` would receive from that step's backward).
     """
+
+    label = "MGN (Algorithm 1)"
+    params_model = MgnParams
 
     def __init__(self, tasks: Sequence[str], shared: Mapping[str, Sequence[str]] | None = None, *,
                  authors_mode: bool = False, **kw: Any) -> None:

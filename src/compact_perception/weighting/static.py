@@ -6,20 +6,28 @@ from typing import Sequence
 from torch import nn
 
 from ..config import ModelRecipe
-from .base import LossWeighting
+from .base import LossWeighting, register
 
 __all__ = ["StaticWeighting", "NoWeighting"]
 
 
+@register("static")
 class StaticWeighting(LossWeighting):
     """Fixed weights (default all 1, eq. 8 with w_i = 1); nothing adapts."""
 
+    label = "Equal static weights"
+    params_model = None
+
     @classmethod
     def from_recipe(cls, recipe: ModelRecipe, tasks: Sequence[str], model: nn.Module | None = None, **kw) -> "StaticWeighting":
-        return cls(tasks, plateau_patience=kw.get("plateau_patience", 4), plateau_factor=kw.get("plateau_factor", 0.5))
+        return cls(tasks, plateau_patience=kw["plateau_patience"], plateau_factor=kw["plateau_factor"])
 
 
+@register("none")
 class NoWeighting(StaticWeighting):
     """No weighting: ``total`` is the plain sum of all losses (identical to static w = 1).
 
     Used by baselines whose own recipe combines its losses itself."""
+
+    label = "No weighting (plain sum)"
+    params_model = None

@@ -21,7 +21,7 @@ Raw record layout: exactly ``docs/ARCHITECTURE.md`` "Raw record layout": ``data/
 with ``frames/<town>_ep<episode>_<step>.npz`` (keys ``rgb_<v>``, ``dvs_<v>``, ``sem_<v>``,
 ``depth_<v>``, ``lidar``, ``lidar_tag``, ``bev``, ``boxes``, ``ego_pose``; v in f, l, ri, r),
 ``stats/class_frequency_<town>.csv`` (tag, class, pixels, points) and ``manifest.json``
-written last (splits 3:1:1, per-frame town/episode/step/time_of_day/weather).
+written last (splits by ``split_ratio``, per-frame town/episode/step/time_of_day/weather).
 """
 from __future__ import annotations
 

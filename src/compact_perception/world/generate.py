@@ -1,7 +1,7 @@
 """Frame rendering and dataset generation for sets A, B, C (SPEC 3, 3.1; ARCHITECTURE.md raw layout).
 
 :func:`render_episode` yields one record per step (npz keys of ARCHITECTURE.md plus a
-``meta`` dict); :func:`generate_dataset` writes ``data/raw/<ds>/`` with the 3:1:1 splits,
+``meta`` dict); :func:`generate_dataset` writes ``data/raw/<ds>/`` with the ``split_ratio`` splits,
 per-town class-frequency CSVs and the manifest (last), all inside ``io.atomic_dir``.
 Episodes are rendered in worker processes; each episode's seed is derived from
 (params.seed, seed_offset, dataset id, episode index), so the output does not depend on
@@ -137,9 +137,13 @@ def check_dataset_params(params: Params, dataset_id: str) -> None:
     E = params.world.frames_per_episode
     if F < 5:
         raise ParamsError(f"datasets.{dataset_id}.frames.{params.scale}: must be at least 5, got {F}")
-    if E > F // 5:
+    n = dp.split_ratio.at(params.scale).counts(F)
+    if min(n.values()) < 1:
+        raise ParamsError(f"datasets.{dataset_id}.frames.{params.scale}: {F} frames leave a split empty "
+                          f"with split_ratio {n}")
+    if E > min(n.values()):
         raise ParamsError(f"world.frames_per_episode: {E} exceeds the smallest split of "
-                          f"datasets.{dataset_id}.frames.{params.scale} ({F} frames -> {F // 5} per val/test split)")
+                          f"datasets.{dataset_id}.frames.{params.scale} ({F} frames -> {n})")
     if dp.split_by == "town" and set(dp.train_towns) & set(dp.eval_towns):
         raise ParamsError(f"datasets.{dataset_id}.eval_towns: split_by 'town' needs towns disjoint from train_towns")
     for key in ("train_towns", "eval_towns"):
@@ -156,12 +160,11 @@ def episode_seed(params: Params, dataset_id: str, index: int) -> int:
 
 
 def plan_episodes(params: Params, dataset_id: str) -> list[dict]:
-    """Episodes of a dataset: split, town, index, seed, frames (3:1:1; no episode in two splits)."""
+    """Episodes of a dataset: split, town, index, seed, frames (``split_ratio``; no episode in two splits)."""
     dp = getattr(params.datasets, dataset_id)
     F = dp.frames.at(params.scale)
     E = params.world.frames_per_episode
-    n = {"train": F * 3 // 5, "val": F // 5}
-    n["test"] = F - n["train"] - n["val"]
+    n = dp.split_ratio.at(params.scale).counts(F)
     if dp.split_by == "town":
         towns = {"train": list(dp.train_towns), "val": list(dp.eval_towns), "test": list(dp.eval_towns)}
     else:

@@ -1,0 +1,35 @@
+"""DVC stage study@<arm>-<seed>: one arm of the loss-balancing study (beyond the paper) at one
+seed, trained and scored on every dataset of ``study.datasets`` (set A at the default scale).
+
+    python -m pipeline.study --arm uw --seed 0
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+
+from compact_perception.cache import CacheError
+from compact_perception.config import ParamsError
+from compact_perception.errors import RunError
+from compact_perception.study import run_arm
+
+from ._common import start
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--arm", required=True, help="an id of params.yaml's study.arm_ids")
+    ap.add_argument("--seed", required=True, type=int, help="one of params.yaml's seeds")
+    ap.add_argument("--params", default="params.yaml")
+    args = ap.parse_args(argv)
+    params = start(args.params)
+    if args.arm not in params.study.arm_ids:
+        sys.exit(f"error: {args.params}: study.arm_ids has no arm {args.arm!r}; known: {params.study.arm_ids}")
+    try:
+        run_arm(params, args.arm, args.seed)
+    except (RunError, CacheError, ParamsError, FileNotFoundError) as err:
+        sys.exit(f"error: {err}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,122 @@
+"""The registries of what the pipeline knows: tasks, datasets and models (issue "one source of
+truth"). Id lists, report labels, table columns and metric directions all derive from here;
+``dvc.yaml``'s lists are checked against it (tests/test_registries.py). Loss-weighting methods
+register themselves in :mod:`compact_perception.weighting` (each with its params schema and label).
+
+This module imports nothing heavy (no torch), so the config and every stage can read it.
+
+- a **task** (paper section III-B): its test metric (``metric``, a per-frame score key), the
+  labels of task and metric, and whether lower or higher is better;
+- a **dataset**: its report label and whether the embedded world simulates it;
+- a **model**: its report label, its group (``compact``: the paper's network, trained per
+  ``seeds``; ``baseline``: section V-D, per ``baseline_seeds``), the LiDAR channels it reads, its
+  tasks, and the network (``compact_perception.models.NETWORKS``) that builds it.
+
+Adding a model: a network file (if new) plus its entry here plus its params.yaml recipe.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+from .registry import Registry
+
+__all__ = [
+    "TaskInfo", "DatasetInfo", "ModelInfo", "TASKS", "DATASETS", "MODELS",
+    "task_ids", "dataset_ids", "sim_dataset_ids", "model_ids", "compact_model_ids", "baseline_model_ids",
+    "metric_of", "metric_keys", "higher_is_better", "model_label",
+]
+
+
+@dataclass(frozen=True)
+class TaskInfo:
+    """One task of the multi-task network."""
+
+    label: str                               # "DE"
+    metric: str                              # per-frame score key: "mae_de"
+    metric_label: str                        # "MAE_DE"
+    direction: Literal["lower", "higher"]    # which way the metric is better
+
+
+@dataclass(frozen=True)
+class DatasetInfo:
+    label: str                               # "Set A"
+    simulated: bool                          # written by the embedded world (generate stage)
+
+
+@dataclass(frozen=True)
+class ModelInfo:
+    label: str                               # report label: "15L+MGN (Alg. 1)"
+    group: Literal["compact", "baseline"]
+    lidar_channels: int                      # LiDAR input channels read (1 or 15, section IV-C)
+    tasks: tuple[str, ...]                   # task ids it predicts
+    network: str                             # models.NETWORKS key
+
+
+TASKS: Registry[TaskInfo] = Registry("task", ordered=True)
+TASKS.register("de")(TaskInfo("DE", "mae_de", "MAE_DE", "lower"))
+TASKS.register("ss")(TaskInfo("SS", "iou_ss", "IoU_SS", "higher"))
+TASKS.register("ls")(TaskInfo("LS", "iou_ls", "IoU_LS", "higher"))
+TASKS.register("bevp")(TaskInfo("BEVP", "iou_bevp", "IoU_BEVP", "higher"))
+
+DATASETS: Registry[DatasetInfo] = Registry("dataset", ordered=True)
+DATASETS.register("A")(DatasetInfo("Set A", True))
+DATASETS.register("B")(DatasetInfo("Set B", True))
+DATASETS.register("C")(DatasetInfo("Set C", True))
+DATASETS.register("nuscenes")(DatasetInfo("nuScenes", False))
+
+_ALL = ("de", "ss", "ls", "bevp")
+MODELS: Registry[ModelInfo] = Registry("model", ordered=True)
+MODELS.register("compact_1l")(ModelInfo("1L", "compact", 1, _ALL, "compact"))
+MODELS.register("compact_15l")(ModelInfo("15L", "compact", 15, _ALL, "compact"))
+MODELS.register("compact_15l_mgn")(ModelInfo("15L+MGN (Alg. 1)", "compact", 15, _ALL, "compact"))
+MODELS.register("compact_15l_mgn_authors")(ModelInfo("15L+MGN (authors' code)", "compact", 15, _ALL, "compact"))
+MODELS.register("gradnorm_segnet")(ModelInfo("GradNorm", "baseline", 15, ("de", "ss"), "gradnorm_segnet"))
+MODELS.register("polarnet")(ModelInfo("PolarNet", "baseline", 15, ("ls",), "polarnet"))
+MODELS.register("chen_bev")(ModelInfo("Chen et al.", "baseline", 15, ("bevp",), "chen_bev"))
+
+
+def task_ids() -> tuple[str, ...]:
+    return tuple(TASKS.keys())
+
+
+def dataset_ids() -> tuple[str, ...]:
+    return tuple(DATASETS.keys())
+
+
+def sim_dataset_ids() -> tuple[str, ...]:
+    return tuple(k for k in DATASETS.keys() if DATASETS[k].simulated)
+
+
+def model_ids() -> tuple[str, ...]:
+    return tuple(MODELS.keys())
+
+
+def compact_model_ids() -> tuple[str, ...]:
+    return tuple(k for k in MODELS.keys() if MODELS[k].group == "compact")
+
+
+def baseline_model_ids() -> tuple[str, ...]:
+    return tuple(k for k in MODELS.keys() if MODELS[k].group == "baseline")
+
+
+def metric_of(task: str) -> str:
+    """The per-frame test metric key of ``task`` (``de`` -> ``mae_de``)."""
+    return TASKS[task].metric
+
+
+def metric_keys() -> tuple[str, ...]:
+    """The four task metrics in task order (the terms of TM, eq. 6)."""
+    return tuple(TASKS[t].metric for t in TASKS.keys())
+
+
+def higher_is_better(metric: str) -> bool:
+    """Direction of a task metric key (``mae_de`` lower, ``iou_*`` higher)."""
+    for t in TASKS.keys():
+        if TASKS[t].metric == metric:
+            return TASKS[t].direction == "higher"
+    raise KeyError(f"unknown metric {metric!r}; known: {list(metric_keys())}")
+
+
+def model_label(model_id: str) -> str:
+    return MODELS[model_id].label

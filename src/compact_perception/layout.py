@@ -1,0 +1,45 @@
+"""Where one training run's files live (the DVC matrix dataset x model x seed):
+
+- ``runs/<ds>/<model>/seed<k>/``          checkpoints, dvclive logs, ``summary.json`` (train)
+- ``results/<ds>/<model>/seed<k>/metrics.json``  test scores (evaluate)
+- ``data/eval/<ds>/<model>/seed<k>/``     per-frame scores and saved predictions (evaluate)
+
+``k`` is one of params.yaml's ``seeds`` (``baseline_seeds`` for a baseline). The loss-balancing
+study's runs live under ``runs/study/<arm>/seed<k>/<ds>/`` (:func:`study_paths`). Every stage and
+the report build these paths here.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+__all__ = ["RunPaths", "run_paths", "study_paths"]
+
+
+@dataclass(frozen=True)
+class RunPaths:
+    """The three locations of one run, relative to ``root``."""
+
+    dataset: str
+    model: str
+    seed: int
+    run_dir: Path        # runs/<ds>/<model>/seed<k>
+    metrics_path: Path   # results/<ds>/<model>/seed<k>/metrics.json
+    eval_dir: Path       # data/eval/<ds>/<model>/seed<k>
+
+
+def run_paths(dataset: str, model: str, seed: int, root: Path | str = ".") -> RunPaths:
+    """Paths of the run (``dataset``, ``model``, training seed ``seed``) under ``root``."""
+    root, tail = Path(root), Path(dataset) / model / f"seed{seed}"
+    return RunPaths(dataset, model, seed, root / "runs" / tail, root / "results" / tail / "metrics.json",
+                    root / "data" / "eval" / tail)
+
+
+def study_paths(arm: str, seed: int, dataset: str, root: Path | str = ".") -> RunPaths:
+    """Paths of one study run (arm ``arm`` of the loss-balancing study, training seed ``seed``, on
+    ``dataset``): ``runs/study/<arm>/seed<k>/<ds>/``, ``results/study/<arm>/seed<k>/<ds>/metrics.json``,
+    ``data/eval/study/<arm>/seed<k>/<ds>/``. One study stage trains an arm at one seed on every
+    dataset of ``study.datasets``, so its outputs are the ``seed<k>`` folders."""
+    root, tail = Path(root), Path("study") / arm / f"seed{seed}" / dataset
+    return RunPaths(dataset, f"study:{arm}", seed, root / "runs" / tail, root / "results" / tail / "metrics.json",
+                    root / "data" / "eval" / tail)

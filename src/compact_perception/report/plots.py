@@ -1,0 +1,73 @@
+"""Training curves of every run as long-format CSV files for ``dvc plots`` (one line per run).
+
+``reports/plots/val_tm.csv``        columns ``epoch, run, val_tm``: every run (every dataset, model
+                                    and seed of params.yaml), one row per logged epoch;
+``reports/plots/loss_weights.csv``  columns ``epoch, run, task, weight``: every run whose loss
+                                    weighting logs weights (dvclive ``live/plots/metrics/w_<task>.tsv``).
+
+``run`` is ``<ds>/<model>/seed<k>`` (:func:`..collect.run_name`); ``epoch`` the dvclive step
+(the training epoch, as ``summary.json``'s ``best_epoch`` counts it); ``val_tm`` the validation
+TM (:func:`..figures.read_val_curve`: ``val/tm``, else ``val_score``, which is the model's own
+share of TM for a baseline). The runs come from :func:`..collect.list_runs` with the seeds of
+params.yaml, so a stale seed folder never appears. ``dvc.yaml`` plots them with the custom
+templates ``.dvc/plots/by_run.json`` (colour by run) and ``weights_by_run.json`` (colour by run,
+stroke dash by task), so the plots scale to any number of runs without listing them.
+"""
+from __future__ import annotations
+
+import csv
+import io as _io
+import logging
+from pathlib import Path
+from typing import Sequence
+
+from .. import io
+from .collect import SeedSpec, list_runs, run_name, seeds_for
+from .figures import read_val_curve, read_weight_curves
+
+log = logging.getLogger(__name__)
+
+VAL_TM_COLUMNS: tuple[str, ...] = ("epoch", "run", "val_tm")
+WEIGHT_COLUMNS: tuple[str, ...] = ("epoch", "run", "task", "weight")
+
+
+def _csv(header: Sequence[str], rows: list[list]) -> str:
+    buf = _io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(header)
+    w.writerows(rows)
+    return buf.getvalue()
+
+
+def plot_rows(root: Path, datasets: Sequence[str], models: Sequence[str], seeds: SeedSpec = None
+              ) -> tuple[list[list], list[list]]:
+    """The rows of ``val_tm.csv`` and ``loss_weights.csv`` (runs in dataset, model, seed order;
+    epochs ascending; tasks in the paper's order)."""
+    val_rows: list[list] = []
+    weight_rows: list[list] = []
+    for ds in datasets:
+        for m in models:
+            for run in list_runs(root, ds, m, seeds_for(seeds, m)):
+                name = run_name(run)
+                curve = read_val_curve(run.run_dir)
+                if curve is None or not len(curve):
+                    log.warning("%s: no validation curve under %s", name, run.run_dir / "live")
+                else:
+                    val_rows += [[int(e), name, float(v)] for e, v in curve.items()]
+                for task, s in read_weight_curves(run.run_dir).items():
+                    weight_rows += [[int(e), name, task, float(v)] for e, v in s.items()]
+    return val_rows, weight_rows
+
+
+def write_plot_data(root: Path, datasets: Sequence[str], models: Sequence[str], out_dir: Path,
+                    seeds: SeedSpec = None) -> list[Path]:
+    """Write ``val_tm.csv`` and ``loss_weights.csv`` under ``out_dir`` (both always, with their
+    header even when empty, so the DVC plots always resolve); returns the paths."""
+    val_rows, weight_rows = plot_rows(root, datasets, models, seeds)
+    out = {Path(out_dir) / "val_tm.csv": _csv(VAL_TM_COLUMNS, val_rows),
+           Path(out_dir) / "loss_weights.csv": _csv(WEIGHT_COLUMNS, weight_rows)}
+    for p, text in out.items():
+        io.write_text(p, text)
+    log.info("plots: %d validation rows (%d runs), %d weight rows", len(val_rows), len({r[1] for r in val_rows}),
+             len(weight_rows))
+    return list(out)

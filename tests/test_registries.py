@@ -1,0 +1,139 @@
+"""The registries are the single source of truth: dvc.yaml's and params.yaml's id lists equal
+them, every loss weighting declares its label and params schema, and the package has no import
+cycles."""
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+import yaml
+
+from compact_perception import catalog
+from compact_perception.config import DatasetsParams, load_params
+from compact_perception.weighting import WEIGHTINGS, weighting_class
+
+from imports import module_file
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def dvc_vars() -> dict:
+    out: dict = {}
+    for entry in yaml.safe_load((ROOT / "dvc.yaml").read_text())["vars"]:
+        out.update(entry)
+    return out
+
+
+def test_dvc_yaml_lists_equal_the_registries(dvc_vars):
+    assert dvc_vars["sim_ids"] == list(catalog.sim_dataset_ids())
+    assert dvc_vars["dataset_ids"] == list(catalog.dataset_ids())
+    assert dvc_vars["compact_ids"] == list(catalog.compact_model_ids())
+    assert dvc_vars["baseline_ids"] == list(catalog.baseline_model_ids())
+    assert dvc_vars["model_ids"] == list(catalog.model_ids())
+
+
+def test_params_yaml_follows_the_registries():
+    p = load_params(ROOT / "params.yaml")
+    assert list(p.train.models) == list(catalog.model_ids())
+    assert list(DatasetsParams.model_fields) == list(catalog.dataset_ids())
+    used = {r.weighting for r in p.train.models.values()} | {a["weighting"] for a in p.study.arms.values()}
+    assert used <= set(WEIGHTINGS.keys()), used - set(WEIGHTINGS.keys())
+    # every registered method is studied or trained somewhere (a new method = file + params entry)
+    assert set(WEIGHTINGS.keys()) - {"none"} <= used, set(WEIGHTINGS.keys()) - used
+    for arm in p.study.arm_ids:  # each arm's settings pass its method's own schema
+        recipe = p.study_recipe(arm)
+        schema = weighting_class(recipe.weighting).params_model
+        if schema is not None:
+            schema.model_validate(recipe.section(recipe.weighting))
+
+
+def test_every_weighting_declares_label_and_schema():
+    for key in WEIGHTINGS.keys():
+        cls = weighting_class(key)
+        assert isinstance(cls.label, str) and cls.label, key
+        assert hasattr(cls, "params_model"), key
+
+
+def test_every_weighting_class_in_the_package_is_registered():
+    """A new method is one file: its class registers itself and the package finds the module."""
+    import inspect
+    import pkgutil
+
+    import compact_perception.weighting as pkg
+    from compact_perception.weighting.base import LossWeighting
+
+    registered = {weighting_class(k) for k in WEIGHTINGS.keys()}
+    for info in pkgutil.iter_modules(pkg.__path__):
+        module = __import__(f"{pkg.__name__}.{info.name}", fromlist=["_"])
+        for _, cls in inspect.getmembers(module, inspect.isclass):
+            if issubclass(cls, LossWeighting) and cls.__module__ == module.__name__ and "label" in vars(cls):
+                assert cls in registered, f"{cls.__name__} ({info.name}.py) declares a label but is not registered"
+
+
+def test_task_registry_directions():
+    assert catalog.metric_keys() == ("mae_de", "iou_ss", "iou_ls", "iou_bevp")
+    assert not catalog.higher_is_better("mae_de")
+    assert all(catalog.higher_is_better(m) for m in ("iou_ss", "iou_ls", "iou_bevp"))
+    for m in catalog.model_ids():
+        info = catalog.MODELS[m]
+        assert set(info.tasks) <= set(catalog.task_ids()) and info.group in ("compact", "baseline")
+
+
+def _top_level_imports(path: Path, module: str) -> set[str]:
+    """Project modules imported at module level (what runs on import), without the module's own
+    parent packages (importing a submodule while its package is being imported is no cycle)."""
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    found: set[str] = set()
+    for node in ast.parse(path.read_text()).body:
+        names: list[str] = []
+        if isinstance(node, ast.Import):
+            names = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                parts = package.split(".")
+                base = ".".join(parts[: len(parts) - (node.level - 1)] + ([node.module] if node.module else []))
+            else:
+                base = node.module or ""
+            names = [base] + [f"{base}.{a.name}" for a in node.names]
+        for name in names:
+            if module_file(ROOT, name) is not None:
+                found.add(name)
+    ancestors = {".".join(module.split(".")[:i]) for i in range(1, len(module.split(".")))}
+    return {m for m in found if m not in ancestors and m != module}
+
+
+def test_no_import_cycles():
+    files = sorted((ROOT / "src" / "compact_perception").rglob("*.py"))
+    graph: dict[str, set[str]] = {}
+    for f in files:
+        rel = f.relative_to(ROOT / "src").with_suffix("")
+        parts = list(rel.parts[:-1]) if rel.name == "__init__" else list(rel.parts)
+        mod = ".".join(parts)
+        graph[mod] = set()
+        for name in _top_level_imports(f, mod):
+            target = module_file(ROOT, name)
+            tr = target.relative_to(ROOT / "src").with_suffix("")
+            tparts = list(tr.parts[:-1]) if tr.name == "__init__" else list(tr.parts)
+            graph[mod].add(".".join(tparts))
+    state: dict[str, int] = {}
+    stack: list[str] = []
+
+    def visit(m: str) -> None:
+        state[m] = 1
+        stack.append(m)
+        for n in sorted(graph.get(m, ())):
+            if n == m:
+                continue
+            if state.get(n) == 1:
+                cycle = stack[stack.index(n):] + [n]
+                pytest.fail(f"import cycle: {' -> '.join(cycle)}")
+            if n not in state:
+                visit(n)
+        stack.pop()
+        state[m] = 2
+
+    for m in sorted(graph):
+        if m not in state:
+            visit(m)
