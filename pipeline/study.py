@@ -18,13 +18,13 @@ from ._common import start
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--arm", required=True, help="an id of params.yaml's study.arm_ids")
+    ap.add_argument("--arm", required=True, help="an arm of params.yaml's study.arms (listed in study.arm_ids)")
     ap.add_argument("--seed", required=True, type=int, help="one of params.yaml's seeds")
     ap.add_argument("--params", default="params.yaml")
     args = ap.parse_args(argv)
     params = start(args.params)
-    if args.arm not in params.study.arm_ids:
-        sys.exit(f"error: {args.params}: study.arm_ids has no arm {args.arm!r}; known: {params.study.arm_ids}")
+    if args.arm not in params.study.arms:  # reads study.arms.<arm> only (the stage's params)
+        sys.exit(f"error: {args.params}: study.arms has no arm {args.arm!r}; known: {sorted(params.study.arms)}")
     try:
         run_arm(params, args.arm, args.seed)
     except (RunError, CacheError, ParamsError, FileNotFoundError) as err:

@@ -11,7 +11,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from compact_perception.report.claims import (CLAIMS, MGN_VARIANTS, MV_MARGIN, NO_DATA, build_claims,
+from compact_perception.report.claims import (BEVP_MARGIN, CLAIMS, MGN_CLAIMS, MGN_VARIANTS, MV_MARGIN, NO_DATA,
+                                              SIMULATED_ONLY, build_claims,
                                               claims_for_dataset, mgn_weight_margins, verdict_counts, write_claims)
 from compact_perception.report.collect import (ReportInputError, align, combination_frames, list_runs,
                                                load_row_frames, read_per_frame)
@@ -48,8 +49,7 @@ def test_scorecard_verdicts_and_paper_differences(tmp_path: Path) -> None:
     expected = []
     for c, _ in CLAIMS:
         for ds in ("A", "C"):
-            expected += [(c, ds, m) for m in MGN_VARIANTS] if c in ("mgn-tm", "mgn-mv", "vs-combination",
-                                                                     "mgn-weights") else [(c, ds, None)]
+            expected += [(c, ds, m) for m in MGN_VARIANTS] if c in MGN_CLAIMS else [(c, ds, None)]
     assert [(r.claim, r.dataset, r.model if r.variant else None) for r in rows] == expected
     lt = _by(rows, "lidar-tm")
     assert lt.verdict == "reproduced" and lt.paper == pytest.approx(0.004) and lt.n_test_frames == N
@@ -57,6 +57,17 @@ def test_scorecard_verdicts_and_paper_differences(tmp_path: Path) -> None:
     assert lt.ci_low <= lt.measured <= lt.ci_high
     assert lt.n_seeds == 3 and lt.seeds_per_model == (3, 3) and lt.variant == ""
     assert _by(rows, "lidar-ls").verdict == "reproduced" and _by(rows, "lidar-ls").paper == pytest.approx(0.018)
+    # fixture: 1L MAE 0.10 / IoU_SS 0.60 / IoU_BEVP 0.50, 15L 0.09 / 0.65 / 0.55; paper A: 0.090 -> 0.083,
+    # 0.619 -> 0.636, BEVP 1L 0.613 vs 15L 0.575
+    de, ss = _by(rows, "lidar-de-ss/de"), _by(rows, "lidar-de-ss/ss")
+    assert ss.verdict == "reproduced"                   # 0.05 apart; DE's 0.01 is inside the seeds' spread
+    assert de.verdict == "inconclusive" and de.ci_low < 0 < de.ci_high
+    assert de.measured == pytest.approx(0.01, abs=1e-6) and de.paper == pytest.approx(0.007)
+    assert ss.measured == pytest.approx(0.05, abs=1e-6) and ss.paper == pytest.approx(0.017)
+    bevp = _by(rows, "lidar-bevp")                      # 0.05 apart, interval straddles the 0.04 margin
+    assert bevp.margin == BEVP_MARGIN and bevp.measured == pytest.approx(0.05, abs=1e-6)
+    assert bevp.ci_low < BEVP_MARGIN < bevp.ci_high and bevp.verdict == "inconclusive"
+    assert bevp.paper == pytest.approx(0.575 - 0.613)
     for mgn, variant in (("compact_15l_mgn", "Alg. 1"), ("compact_15l_mgn_authors", "authors' code")):
         mt = _by(rows, "mgn-tm", model=mgn)                 # 15L+MGN = 15L: no difference
         assert mt.variant == variant and mt.statement.startswith(("15L+MGN (Alg. 1)", "15L+MGN (authors' code)"))
@@ -65,6 +76,11 @@ def test_scorecard_verdicts_and_paper_differences(tmp_path: Path) -> None:
         assert mt.paper == pytest.approx(0.055)            # the paper's one 15L+MGN row, for both forms
         assert _by(rows, "mgn-mv", model=mgn).paper == pytest.approx(0.005)
         assert _by(rows, "mgn-mv", model=mgn).margin is None
+        for claim in ("mgn-tradeoff/ls", "mgn-tradeoff/bevp", "mgn-tradeoff/de", "mgn-tradeoff/ss"):
+            row = _by(rows, claim, model=mgn)               # 15L+MGN = 15L in the fixture
+            assert row.verdict == "inconclusive" and row.measured == pytest.approx(0.0, abs=1e-6), claim
+        assert _by(rows, "mgn-tradeoff/ls", model=mgn).paper == pytest.approx(0.470 - 0.424)
+        assert _by(rows, "mgn-tradeoff/de", model=mgn).paper == pytest.approx(0.084 - 0.083)
         vc = _by(rows, "vs-combination", model=mgn)         # the combination is far better here
         assert vc.verdict == "contradicted" and vc.paper == pytest.approx(1.430 - 1.393)
         vc_c = _by(rows, "vs-combination", "C", model=mgn)  # on C the paper says the combination wins
@@ -77,6 +93,23 @@ def test_scorecard_verdicts_and_paper_differences(tmp_path: Path) -> None:
     assert pl.verdict == "reproduced" and pl.paper == pytest.approx(0.483 - 0.470)
     assert pl.measured == pytest.approx(0.90 - 0.50, abs=1e-6)   # the same seed shifts on both sides
     assert "15L+MGN (authors' code)" in pl.note
+
+
+def test_simulated_only_claims_have_no_nuscenes_row(tmp_path: Path) -> None:
+    _tree(tmp_path, ("nuscenes",))
+    rows = _claims(tmp_path, ["nuscenes"], n_boot=100)
+    assert not [r for r in rows if r.claim in SIMULATED_ONLY]
+    assert _by(rows, "lidar-bevp", "nuscenes").margin == BEVP_MARGIN
+
+
+def test_tradeoff_rows_point_each_way(tmp_path: Path) -> None:
+    """MGN better on LS, worse on DE: the LS row is reproduced, the DE row (15L wins) too."""
+    _tree(tmp_path, bases=bases_with(compact_15l_mgn={"iou_ls": 0.60, "mae_de": 0.12}))
+    rows = _claims(tmp_path, ["A"])
+    ls, de = (_by(rows, f"mgn-tradeoff/{t}", model="compact_15l_mgn") for t in ("ls", "de"))
+    assert ls.verdict == "reproduced" and ls.measured == pytest.approx(0.10, abs=1e-6)
+    assert de.verdict == "reproduced" and de.measured == pytest.approx(0.03, abs=1e-6)
+    assert de.statement == "15L has a lower MAE_DE than 15L+MGN (Alg. 1)"
 
 
 def test_mgn_variants_differ_where_their_scores_do(tmp_path: Path) -> None:

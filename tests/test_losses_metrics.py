@@ -22,6 +22,7 @@ from compact_perception.metrics import (
     class_confusion,
     class_iou,
     combine_tasks,
+    argmax_one_hot,
     compute_metrics,
     compute_metrics_per_sample,
     decode_log_depth,
@@ -177,16 +178,30 @@ def test_tm_mv_by_hand() -> None:
     assert arr.tolist() == pytest.approx([0.015, 0.0])
 
 
+def test_softmax_tasks_are_scored_by_their_argmax_map() -> None:
+    """One view, 3 classes, 2 pixels. Softmax pixel 0 = [0.40, 0.35, 0.25] (arg-max class 0),
+    pixel 1 = [0.30, 0.45, 0.25] (arg-max 1); ground truth: class 0, class 2. Arg-max one-hot:
+    intersection {p0 c0} = 1, union {p0 c0, p1 c1, p1 c2} = 3 -> IoU 1/3. Eq. (5) on the
+    probabilities themselves: nothing above 0.5 -> intersection 0, union 2 -> IoU 0."""
+    probs = torch.tensor([[0.40, 0.30], [0.35, 0.45], [0.25, 0.25]], dtype=D).reshape(1, 1, 3, 1, 2)
+    gt = torch.tensor([[1.0, 0.0], [0.0, 0.0], [0.0, 1.0]], dtype=D).reshape(1, 1, 3, 1, 2)
+    assert argmax_one_hot(probs).reshape(3, 2).tolist() == [[1.0, 0.0], [0.0, 1.0], [0.0, 0.0]]
+    assert compute_metrics({"ss": probs}, {"ss": gt}, argmax_tasks=("ss",))["iou_ss"] == pytest.approx(1 / 3)
+    assert compute_metrics({"ss": probs}, {"ss": gt}, argmax_tasks=())["iou_ss"] == 0.0
+    per = compute_metrics_per_sample({"ss": probs}, {"ss": gt}, argmax_tasks=("ss",))
+    assert per["iou_ss"].tolist() == pytest.approx([1 / 3])
+
+
 def test_compute_metrics_keys_and_combine() -> None:
     g = torch.Generator().manual_seed(4)
     out = {"de": torch.rand(2, 4, 1, 4, 4, generator=g, dtype=D), "ss": torch.rand(2, 4, 3, 4, 4, generator=g, dtype=D),
            "ls": torch.rand(2, 3, 4, 4, generator=g, dtype=D), "bevp": torch.rand(2, 2, 4, 4, generator=g, dtype=D)}
     tgt = {k: (torch.rand(v.shape, generator=g, dtype=D) > 0.5).to(D) for k, v in out.items()}
-    m = compute_metrics(out, tgt)
+    m = compute_metrics(out, tgt, argmax_tasks=())
     assert set(m) == {"mae_de", "iou_ss", "iou_ls", "iou_bevp", "tm", "mv"}
     assert m["tm"] == pytest.approx(total_metric(m["mae_de"], m["iou_ss"], m["iou_ls"], m["iou_bevp"]))
-    assert set(compute_metrics({"ls": out["ls"]}, tgt)) == {"iou_ls"}
-    ps = compute_metrics_per_sample(out, tgt)
+    assert set(compute_metrics({"ls": out["ls"]}, tgt, argmax_tasks=())) == {"iou_ls"}
+    ps = compute_metrics_per_sample(out, tgt, argmax_tasks=())
     assert ps["tm"].shape == (2,) and "mv" not in ps          # MV is not a per-frame quantity
     c = combine_tasks({"mae_de": 0.1, "iou_ss": 0.8}, {"iou_ls": 0.6}, {"iou_bevp": 0.9})
     assert c["tm"] == pytest.approx(0.8) and c["mv"] == pytest.approx(0.015)

@@ -166,7 +166,7 @@ def evaluate_run(dataset_id: str, model_id: str, cache_dir: Path, run_dir: Path,
         for i, raw in enumerate(tqdm(loader, desc=f"evaluate {dataset_id}/{model_id}", leave=False)):
             batch = to_device(raw, device, n_cls)
             out = model(batch)
-            row = {"frame_id": ids[i], **frame_scores(compute_metrics(out, batch))}
+            row = {"frame_id": ids[i], **frame_scores(compute_metrics(out, batch, argmax_tasks=model.argmax_tasks))}
             if "de" in out and "de" in batch:
                 row.update({k: float(v[0]) for k, v in depth_errors_per_sample(out["de"], batch["de"]).items()})
             rows.append(row)

@@ -30,10 +30,11 @@ for the batch-1 test evaluation of Table II (mean +- variance over test frames).
 """
 from __future__ import annotations
 
-from typing import Any, Mapping, Union
+from typing import Any, Collection, Mapping, Union
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 
 from . import catalog
@@ -48,6 +49,8 @@ __all__ = [
     "total_metric",
     "metric_variance",
     "compute_metrics",
+    "argmax_one_hot",
+    "scored_outputs",
     "compute_metrics_per_sample",
     "combine_tasks",
     "scores_from_means",
@@ -145,12 +148,31 @@ def total_metric_partial(scores: Mapping[str, float]) -> float:
     return out
 
 
-def compute_metrics(outputs: Mapping[str, Tensor], targets: Mapping[str, Tensor]) -> dict[str, float]:
+def argmax_one_hot(probs: Tensor) -> Tensor:
+    """A softmax output's predicted class map as a one-hot tensor (class axis -3, as the
+    targets): 1 at the arg-max class of every pixel, 0 elsewhere."""
+    n_cls = probs.shape[-3]
+    return F.one_hot(probs.argmax(dim=-3), n_cls).movedim(-1, -3).to(probs.dtype)
+
+
+def scored_outputs(outputs: Mapping[str, Tensor], argmax_tasks: Collection[str]) -> dict[str, Tensor]:
+    """What eq. (5) scores: every output as it is, except the tasks of ``argmax_tasks`` (a
+    model's softmax heads: ``argmax_tasks`` of the model class) replaced by their arg-max
+    one-hot map. A softmax spreads one unit of probability over C classes, so its class map
+    can be right everywhere with no value above eq. (5)'s 0.5 (docs/gradnorm_segnet.md); the
+    sigmoid heads of the compact network are scored by the threshold, as the paper does."""
+    return {k: argmax_one_hot(v) if k in argmax_tasks else v for k, v in outputs.items()}
+
+
+def compute_metrics(outputs: Mapping[str, Tensor], targets: Mapping[str, Tensor], *,
+                    argmax_tasks: Collection[str]) -> dict[str, float]:
     """Batch metrics for the tasks present in both dicts: ``mae_de``, ``iou_ss``, ``iou_ls``,
-    ``iou_bevp``; plus ``tm`` and ``mv`` only when all four are present.
+    ``iou_bevp``; plus ``tm`` and ``mv`` only when all four are present. ``argmax_tasks``: the
+    model's softmax tasks, scored by their arg-max map (:func:`scored_outputs`).
 
     ``mv`` here is eq. (7) of *this batch's* four scores; a mean of it over batches or frames
     is not the paper's MV (use :func:`scores_from_means` on the split's means)."""
+    outputs = scored_outputs(outputs, argmax_tasks)
     out: dict[str, float] = {}
     if "de" in outputs and "de" in targets:
         out["mae_de"] = float(mae(outputs["de"], targets["de"]))
@@ -163,10 +185,12 @@ def compute_metrics(outputs: Mapping[str, Tensor], targets: Mapping[str, Tensor]
     return out
 
 
-def compute_metrics_per_sample(outputs: Mapping[str, Tensor], targets: Mapping[str, Tensor]) -> dict[str, Tensor]:
+def compute_metrics_per_sample(outputs: Mapping[str, Tensor], targets: Mapping[str, Tensor], *,
+                               argmax_tasks: Collection[str]) -> dict[str, Tensor]:
     """As :func:`compute_metrics` but every value is a (B,) float64 tensor (one per frame).
 
     Per-frame ``tm`` only: MV is not a per-frame quantity (eq. 7 takes the test-set means)."""
+    outputs = scored_outputs(outputs, argmax_tasks)
     out: dict[str, Tensor] = {}
     if "de" in outputs and "de" in targets:
         out["mae_de"] = mae_per_sample(outputs["de"], targets["de"])

@@ -155,7 +155,8 @@ def evaluate_split(model: torch.nn.Module, loader, device: torch.device, spec: d
             losses = scale_de_loss(model.compute_losses(out, batch), de_factor)
             n = next(iter(batch.values())).shape[0]
             values = {f"loss_{k}": v.item() for k, v in losses.items()}
-            values.update({k: float(v) for k, v in compute_metrics(out, batch).items()})
+            values.update({k: float(v) for k, v in
+                           compute_metrics(out, batch, argmax_tasks=model.argmax_tasks).items()})
             acc.add(values, n)
     return _split_scores(acc.mean())
 
@@ -304,6 +305,7 @@ def _train(params: Params, dataset_id: str, model_id: str, recipe: ModelRecipe, 
     if tp.channels_last:
         model = to_channels_last(model)
     lidar_channels = getattr(model, "lidar_channels", 15)
+    argmax_tasks = model.argmax_tasks  # softmax heads, scored by their arg-max map (metrics.scored_outputs)
     weighting = build_weighting(recipe, model.tasks, model, plateau_patience=tp.plateau_patience,
                                 plateau_factor=tp.plateau_factor)
     optimizer = make_optimizer(recipe, model.parameters())
@@ -403,7 +405,8 @@ def _train(params: Params, dataset_id: str, model_id: str, recipe: ModelRecipe, 
             with torch.no_grad():
                 values = {f"loss_{k}": v.item() for k, v in losses.items()}
                 values["loss_total"] = total.item()
-                values.update({k: float(v) for k, v in compute_metrics(out, batch).items()})
+                values.update({k: float(v) for k, v in
+                               compute_metrics(out, batch, argmax_tasks=argmax_tasks).items()})
             acc.add(values, next(iter(batch.values())).shape[0])
             bar.set_postfix(loss=f"{values['loss_total']:.3f}", refresh=False)
             bar.update()

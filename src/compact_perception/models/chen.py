@@ -138,6 +138,7 @@ class ChenBEV(nn.Module):
     """Front RGB + top-view LS -> latent -> BEV and input reconstructions (task `bevp`)."""
 
     tasks: tuple[str, ...] = ("bevp",)
+    argmax_tasks: tuple[str, ...] = ()  # sigmoid BEV head: eq. (5)'s threshold
 
     def __init__(self, n_seg: int, n_bev: int) -> None:
         super().__init__()

@@ -85,6 +85,7 @@ class CompactPerception(nn.Module):
     """Compact MTL model performing DE, SS, LS and BEVP in one pass (section III-A)."""
 
     tasks: tuple[str, ...] = ("de", "ss", "ls", "bevp")
+    argmax_tasks: tuple[str, ...] = ()  # sigmoid heads: eq. (5)'s threshold
 
     def __init__(
         self,

@@ -66,6 +66,7 @@ class PolarNet(nn.Module):
     """Ring-connected U-Net for LiDAR segmentation (task `ls`)."""
 
     tasks: tuple[str, ...] = ("ls",)
+    argmax_tasks: tuple[str, ...] = ("ls",)  # softmax LS head: scored by its arg-max map (metrics.scored_outputs)
 
     def __init__(self, n_classes: int, in_ch: int = 15) -> None:
         super().__init__()

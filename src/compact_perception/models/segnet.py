@@ -80,6 +80,7 @@ class GradNormSegNet(nn.Module):
     """Four independent per-view SegNets (DE + SS), trained with GradNorm (alpha 1.5)."""
 
     tasks: tuple[str, ...] = ("de", "ss")
+    argmax_tasks: tuple[str, ...] = ("ss",)  # softmax SS head: scored by its arg-max map (metrics.scored_outputs)
 
     def __init__(self, n_classes: int, n_views: int = 4) -> None:
         super().__init__()
