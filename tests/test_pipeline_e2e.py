@@ -169,7 +169,8 @@ def test_every_stage_ran_and_outputs_exist(pipeline):
     for name in ("val_tm.csv", "loss_weights.csv"):
         runs = {row["run"] for row in csv.DictReader((repo / "reports/plots" / name).open())}
         if name == "val_tm.csv":
-            assert runs == {f"{ds}/{m}/seed{k}" for ds in DATASETS for m in MODELS for k in seeds_of(m)}
+            assert runs == ({f"{ds}/{m}/seed{k}" for ds in DATASETS for m in MODELS for k in seeds_of(m)}
+                            | {f"study/{arm}/seed{k}/A" for arm in STUDY_ARMS for k in SEEDS})
         else:
             assert {f"{ds}/compact_15l_mgn/seed{k}" for ds in DATASETS for k in SEEDS} <= runs
     for ds in DATASETS:

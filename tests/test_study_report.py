@@ -172,3 +172,17 @@ def test_index_links_the_study(tmp_path: Path) -> None:
     assert "## Loss-balancing study (beyond the paper)" in index
     assert "(tables/weighting.md)" in index and "(figures/report/loss_weights_study_A.png)" in index
     assert "### Set A" in index and "| GradNorm (Chen et al. 2018) | 2 |" in index
+
+
+def test_plots_csv_has_every_study_run(tmp_path: Path) -> None:
+    """dvc plots cover the study too: each study run with logged weights appears in
+    loss_weights.csv as study/<arm>/seed<k>/<ds>."""
+    _tree(tmp_path)
+    build_reports(tmp_path, tmp_path / "reports", datasets=("A",), models=PAPER, scale_name="default",
+                  seeds={m: [0, 1, 2] for m in PAPER}, study=SPEC)
+    rows = list(csv.DictReader((tmp_path / "reports/plots/loss_weights.csv").open()))
+    runs = {r["run"] for r in rows}
+    assert {"study/gradnorm/seed0/A", "study/gradnorm/seed1/A", "study/uw/seed0/A"} <= runs
+    assert "study/pcgrad/seed0/A" not in runs            # logged no weights in the fixture
+    g0 = [float(r["weight"]) for r in rows if r["run"] == "study/gradnorm/seed0/A" and r["task"] == "de"]
+    assert g0 == W["w_de"]

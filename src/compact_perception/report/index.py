@@ -34,7 +34,7 @@ from .collect import (DatasetScale, ModelResult, SeedSpec, collect_scale, list_r
 from .figures import MODEL_LABEL, plot_loss_weights, plot_qualitative, plot_training_curves
 from .paper import PaperNumbers, load_paper_numbers
 from .plots import write_plot_data
-from .study import StudyOutputs, write_study_report
+from .study import StudyOutputs, study_run_dirs, write_study_report
 from .tables import (DATASET_LABEL, MGN_MODELS, ROW_ORDER, build_extra_rows, build_table2, build_table3,
                      extra_markdown, scale_lines, table2_csv, table2_latex, table2_markdown, table3_markdown,
                      write_comparison, write_extra_metrics, write_table, write_table3)
@@ -248,7 +248,8 @@ def build_reports(root: Path, out_dir: Path, *, datasets: Sequence[str] = datase
         lines = scale_lines(scales, paper, scale_name=scale_name,
                             device=(efficiency or {}).get("device", ""))
         written += write_comparison(paper, t2, t3, lines, tdir)
-        written += write_plot_data(root, list(datasets), list(models), pdir, seeds)
+        written += write_plot_data(root, list(datasets), list(models), pdir, seeds,
+                                   study_run_dirs(root, study) if study is not None else ())
         study_out: Optional[StudyOutputs] = None
         study_figs: dict[str, str] = {}
         if study is not None:

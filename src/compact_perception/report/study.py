@@ -44,7 +44,7 @@ log = logging.getLogger(__name__)
 __all__ = [
     "PAPER_FORMS", "StudySpec", "StudyMethod", "SeedResult", "StudyRow", "StudyOutputs", "delta_m",
     "study_methods", "collect_seed_results", "reference_means", "build_rows", "weighting_csv",
-    "weighting_markdown", "plot_study_weights", "write_study_report",
+    "weighting_markdown", "plot_study_weights", "write_study_report", "study_run_dirs",
 ]
 
 #: The paper's weighting forms: main runs of these models (model id -> weighting id).
@@ -166,6 +166,20 @@ def _method_runs(root: Path, ds: str, method: StudyMethod, seeds: Sequence[int]
         p = study_paths(method.id, k, ds, root)
         if p.run_dir.is_dir() or p.metrics_path.is_file():
             out.append((k, p.run_dir, p.metrics_path))
+    return out
+
+
+def study_run_dirs(root: Path, params: Any) -> list[tuple[str, Path]]:
+    """(``study/<arm>/seed<k>/<ds>``, run folder) of every study run present, in ``study.arm_ids``,
+    seed, dataset order (the plots' CSV rows)."""
+    spec = StudySpec.from_params(params)
+    out = []
+    for arm in spec.arm_ids:
+        for k in spec.seeds:
+            for ds in spec.datasets:
+                p = study_paths(arm, k, ds, root)
+                if p.run_dir.is_dir():
+                    out.append((f"study/{arm}/seed{k}/{ds}", p.run_dir))
     return out
 
 
