@@ -26,7 +26,7 @@ import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Optional, Sequence
+from typing import Any, Mapping, Optional, Sequence
 
 import numpy as np
 import pandas as pd
@@ -37,6 +37,7 @@ from ..stats import (MIN_SEEDS, N_BOOT, BootstrapResult, bootstrap_contrast, pai
 from .collect import (TASK_METRICS, ReportInputError, SeedSpec, align, list_runs, load_row_frames, read_summary,
                       seeds_for)
 from .paper import PaperNumbers
+from .tables import BASELINES, build_table3
 
 log = logging.getLogger(__name__)
 
@@ -72,6 +73,10 @@ CLAIMS: tuple[tuple[str, str], ...] = (
     ("vs-combination", "15L+MGN has a lower TM than the combination (the combination wins on C)"),
     ("polarnet-ls", "PolarNet has the highest IoU_LS"),
     ("mgn-weights", "MGN gives DE the largest final loss weight"),
+    ("efficiency/params", "15L+MGN has fewer parameters than the combination"),
+    ("efficiency/size", "15L+MGN has a smaller state-dict size than the combination"),
+    ("efficiency/memory", "15L+MGN needs less memory than the combination"),
+    ("efficiency/fps", "15L+MGN runs at a higher FPS than the combination"),
 )
 #: The claims tested once per MGN form.
 MGN_CLAIMS: frozenset[str] = frozenset({"mgn-tm", "mgn-mv", "mgn-tradeoff/ls", "mgn-tradeoff/bevp", "mgn-tradeoff/de",
@@ -104,7 +109,12 @@ RULE_TEXT = (
     "smallest). The claims about 15L+MGN are tested for both MGN forms, one row each: `Alg. 1` = "
     "compact_15l_mgn (Algorithm 1 as the paper prints it), `authors' code` = compact_15l_mgn_authors (MGN as the "
     "authors' public code runs it); `paper` is the paper's one 15L+MGN row for both (its Table II came from the "
-    "authors' code). `mgn-weights`: one observation per training seed, w_DE − max(w_SS, w_LS, w_BEVP) of the final "
+    "authors' code). `efficiency/*` (Table III, results/benchmark/efficiency.json): 15L+MGN against the "
+    "combination, whose parameters, size, memory and latency are the sums of its three models; params and size are "
+    "exact counts and the memory an exact estimate (forward hooks), so their interval is the value itself; FPS is "
+    "timed, and its range (not a bootstrap) comes from each model's fastest and 90th-percentile latency of the "
+    "timed runs; the paper's numbers come from a GTX 1080 Ti GPU, this run's from the benchmark's device. "
+    "`mgn-weights`: one observation per training seed, w_DE − max(w_SS, w_LS, w_BEVP) of the final "
     "weights (runs/<ds>/<MGN model>/seed<k>/summary.json); its interval is a bootstrap over seeds, and with fewer "
     f"than {MIN_SEEDS} seeds the verdict is `inconclusive` (one training is a single observation). "
     f"`{NO_DATA}`: an input the claim needs is missing. `paper`: the same difference from the paper's printed "
@@ -312,16 +322,59 @@ def claims_for_dataset(root: Path, ds: str, paper: PaperNumbers, frames: Optiona
 
 def build_claims(root: Path, datasets: Sequence[str], paper: PaperNumbers, *,
                  frames: Optional[dict[str, dict[str, list[pd.DataFrame]]]] = None, n_boot: int = N_BOOT,
-                 seeds: SeedSpec = None) -> list[ClaimRow]:
+                 seeds: SeedSpec = None, efficiency: Optional[Mapping[str, Any]] = None) -> list[ClaimRow]:
     """The scorecard, sorted by claim (order of :data:`CLAIMS`), then dataset (order given), then
-    MGN form (order of :data:`MGN_VARIANTS`)."""
+    MGN form (order of :data:`MGN_VARIANTS`). ``efficiency``: ``results/benchmark/efficiency.json``
+    for the Table III claims (left out when None)."""
     rows: list[ClaimRow] = []
     for ds in datasets:
         rows += claims_for_dataset(root, ds, paper, (frames or {}).get(ds), n_boot=n_boot, seeds=seeds)
+    if efficiency is not None:
+        rows += [r for r in efficiency_claims(efficiency, paper) if r.dataset in datasets]
     order = {c: i for i, (c, _) in enumerate(CLAIMS)}
     ds_order = {d: i for i, d in enumerate(datasets)}
     v_order = {m: i for i, m in enumerate(MGN_VARIANTS)}
     return sorted(rows, key=lambda r: (order[r.claim], ds_order[r.dataset], v_order.get(r.model, -1)))
+
+
+def efficiency_claims(efficiency: Mapping[str, Any], paper: PaperNumbers, model: str = PAPER_MGN) -> list[ClaimRow]:
+    """The ``efficiency/*`` rows (Table III) per benchmarked dataset, oriented so that positive
+    means 15L+MGN is the more efficient: combination - 15L+MGN for parameters, size and memory,
+    15L+MGN - combination for FPS."""
+    st = dict(CLAIMS)
+    rows: list[ClaimRow] = []
+    for ds, t3 in build_table3(dict(efficiency)).items():
+        by = {r.row_id: r for r in t3}
+        mgn, comb = by.get(model), by.get("combination")
+        raw = efficiency["models"][ds]
+        pm, pc = paper.table3_row(ds, PAPER_MGN), paper.table3_row(ds, "combination")
+        for claim, field, paper_field in (("efficiency/params", "total_params", "total_params"),
+                                          ("efficiency/size", "total_size_mb", "total_size_mb"),
+                                          ("efficiency/memory", "peak_memory_mb", "gpu_memory_mb"),
+                                          ("efficiency/fps", "fps", "fps")):
+            if mgn is None or comb is None or not (mgn.available and comb.available):
+                rows.append(ClaimRow(ds, claim, st[claim], None, None, None, None, None, None, NO_DATA,
+                                     note="no benchmark of 15L+MGN or of all three baselines", model=model))
+                continue
+            sign = 1.0 if field == "fps" else -1.0
+            measured = sign * (float(getattr(mgn, field)) - float(getattr(comb, field)))
+            lo = hi = measured
+            spread = all(k in raw[m] for m in (model, *BASELINES) for k in ("latency_ms_min", "latency_ms_p90"))
+            if field == "fps" and not spread:  # a benchmark file without the timed runs' spread
+                lo = hi = math.nan
+            elif field == "fps":  # range from the fastest and the 90th-percentile timed runs
+                comb_min = sum(float(raw[b]["latency_ms_min"]) for b in BASELINES)
+                comb_p90 = sum(float(raw[b]["latency_ms_p90"]) for b in BASELINES)
+                lo = 1e3 / float(raw[model]["latency_ms_p90"]) - 1e3 / comb_min
+                hi = 1e3 / float(raw[model]["latency_ms_min"]) - 1e3 / comb_p90
+            pa, pb = (getattr(pm, paper_field, None) if pm else None), (getattr(pc, paper_field, None) if pc else None)
+            pdiff = None if pa is None or pb is None else round(sign * (float(pa) - float(pb)), 6)
+            device = mgn.device or "the benchmark's device"
+            rows.append(ClaimRow(ds, claim, st[claim], pdiff, measured, None if math.isnan(lo) else lo,
+                                 None if math.isnan(hi) else hi, None, None, verdict(lo, hi),
+                                 note=f"measured on {device}" + ("; paper: GTX 1080 Ti" if claim in (
+                                     "efficiency/memory", "efficiency/fps") else ""), model=model))
+    return rows
 
 
 def verdict_counts(rows: Sequence[ClaimRow]) -> dict[str, int]:

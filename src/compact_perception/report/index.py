@@ -235,7 +235,7 @@ def build_reports(root: Path, out_dir: Path, *, datasets: Sequence[str] = datase
         written += write_extra_metrics(results, tdir)
         extra_md = extra_markdown(build_extra_rows(results))
         claim_ds = [ds for ds in datasets if results.get(ds) or frames.get(ds)]
-        claim_rows = build_claims(root, claim_ds, paper, frames=frames, seeds=seeds)
+        claim_rows = build_claims(root, claim_ds, paper, frames=frames, seeds=seeds, efficiency=efficiency)
         claims_md = claims_markdown(claim_rows)
         for name, text in (("claims.md", claims_md), ("claims.csv", claims_csv(claim_rows))):
             io.write_text(tdir / name, text)
