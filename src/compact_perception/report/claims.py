@@ -37,11 +37,10 @@ from ..stats import (MIN_SEEDS, N_BOOT, BootstrapResult, bootstrap_contrast, pai
 from .collect import (TASK_METRICS, ReportInputError, SeedSpec, align, list_runs, load_row_frames, read_summary,
                       seeds_for)
 from .paper import PaperNumbers
-from .tables import BASELINES, build_table3
+from .tables import BASELINES, COMPACT, DATASET_LABEL, build_table3
 
 log = logging.getLogger(__name__)
 
-DATASET_LABEL: dict[str, str] = {d: catalog.DATASETS[d].label for d in catalog.dataset_ids()}
 LABEL: dict[str, str] = {**{m: catalog.model_label(m) for m in catalog.model_ids()}, "combination": "the combination"}
 MODELS: tuple[str, ...] = catalog.model_ids()
 #: The MGN forms tested by every claim about 15L+MGN: model id -> variant label.
@@ -49,8 +48,6 @@ MGN_VARIANTS: dict[str, str] = {m: v for m, v in (("compact_15l_mgn", "Alg. 1"),
                                                   ("compact_15l_mgn_authors", "authors' code")) if m in LABEL}
 #: The paper's Table II row of 15L+MGN (compared with both forms).
 PAPER_MGN = "compact_15l_mgn"
-#: Compact models (PolarNet's IoU_LS is compared with the best of them).
-COMPACT: tuple[str, ...] = catalog.compact_model_ids()
 #: Equivalence margin of "15L+MGN and 15L have equal MV" (nuScenes): one unit of the paper's
 #: printed precision (3 decimals), the smallest difference Table II could show.
 MV_MARGIN = 1e-3
