@@ -181,3 +181,24 @@ def _assert_rejected(params_dict, path, value, fragment):
     node[path[-1]] = value
     with pytest.raises(ParamsError, match=fragment):
         parse_params(params_dict)
+
+
+@pytest.mark.parametrize(
+    "path, value, fragment",
+    [
+        (("dataset_ids",), ["A", "D"], r"dataset_ids: .*unknown dataset\(s\) \['D'\]"),
+        (("sim_ids",), ["A", "A"], r"sim_ids: .*distinct ids"),
+        (("model_ids",), ["compact_1l"], r"model_ids: .*compact_ids \+ baseline_ids"),
+        (("baseline_ids",), ["resnet"], r"model_ids: "),
+    ],
+)
+def test_run_lists_are_checked(params_dict, path, value, fragment):
+    """The matrices' id lists (what dvc.yaml iterates over) fail with the key named."""
+    _assert_rejected(params_dict, path, value, fragment)
+
+
+def test_a_model_listed_without_a_recipe_is_named(params_dict):
+    params_dict["baseline_ids"] = params_dict["baseline_ids"] + ["resnet"]
+    params_dict["model_ids"] = params_dict["model_ids"] + ["resnet"]
+    with pytest.raises(ParamsError, match=r"model_ids: no recipe train\.models\.<id> for \['resnet'\]"):
+        parse_params(params_dict)

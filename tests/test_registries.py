@@ -1,5 +1,5 @@
-"""The registries are the single source of truth: dvc.yaml's and params.yaml's id lists equal
-them, every loss weighting declares its label and params schema, and the package has no import
+"""The registries are the single source of truth: params.yaml's id lists (which dvc.yaml's
+matrices read) equal them, every loss weighting declares its label and params schema, and the package has no import
 cycles."""
 from __future__ import annotations
 
@@ -18,20 +18,23 @@ from imports import module_file
 ROOT = Path(__file__).resolve().parents[1]
 
 
-@pytest.fixture(scope="module")
-def dvc_vars() -> dict:
-    out: dict = {}
-    for entry in yaml.safe_load((ROOT / "dvc.yaml").read_text())["vars"]:
-        out.update(entry)
-    return out
+def test_the_run_lists_equal_the_registries():
+    """dvc.yaml's matrices iterate over params.yaml's id lists, which must equal the registries."""
+    p = load_params(ROOT / "params.yaml")
+    assert p.sim_ids == list(catalog.sim_dataset_ids())
+    assert p.dataset_ids == list(catalog.dataset_ids())
+    assert p.compact_ids == list(catalog.compact_model_ids())
+    assert p.baseline_ids == list(catalog.baseline_model_ids())
+    assert p.model_ids == list(catalog.model_ids())
 
 
-def test_dvc_yaml_lists_equal_the_registries(dvc_vars):
-    assert dvc_vars["sim_ids"] == list(catalog.sim_dataset_ids())
-    assert dvc_vars["dataset_ids"] == list(catalog.dataset_ids())
-    assert dvc_vars["compact_ids"] == list(catalog.compact_model_ids())
-    assert dvc_vars["baseline_ids"] == list(catalog.baseline_model_ids())
-    assert dvc_vars["model_ids"] == list(catalog.model_ids())
+def test_dvc_yaml_reads_its_lists_from_params():
+    """No second copy of the lists: dvc.yaml has no ``vars`` of its own, and its matrices name
+    params.yaml's lists."""
+    text = (ROOT / "dvc.yaml").read_text()
+    assert "vars" not in yaml.safe_load(text)
+    for key in ("sim_ids", "dataset_ids", "compact_ids", "baseline_ids", "model_ids"):
+        assert "${" + key + "}" in text, key
 
 
 def test_params_yaml_follows_the_registries():
@@ -137,3 +140,15 @@ def test_no_import_cycles():
     for m in sorted(graph):
         if m not in state:
             visit(m)
+
+
+def test_every_network_is_registered_by_its_own_module():
+    """A new network is one file: its factory registers itself (``@register_network``) and the
+    models package imports the module; every model names a registered network, every network
+    serves some model."""
+    from compact_perception.models import NETWORKS, build_model
+
+    networks = {catalog.MODELS[m].network for m in catalog.model_ids()}
+    assert networks == set(NETWORKS.keys())
+    for m in catalog.model_ids():
+        assert set(build_model(m, catalog.dataset_ids()[0]).tasks) == set(catalog.MODELS[m].tasks), m

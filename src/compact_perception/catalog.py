@@ -12,7 +12,10 @@ This module imports nothing heavy (no torch), so the config and every stage can 
   ``seeds``; ``baseline``: section V-D, per ``baseline_seeds``), the LiDAR channels it reads, its
   tasks, and the network (``compact_perception.models.NETWORKS``) that builds it.
 
-Adding a model: a network file (if new) plus its entry here plus its params.yaml recipe.
+Adding a model (three files): the network's file in ``models/`` (its factory registers itself with
+``@register_network``), the model's entry here, and in params.yaml its recipe
+(``train.models.<id>``) and its id in ``compact_ids``/``baseline_ids`` and ``model_ids`` (the
+lists dvc.yaml's matrices read).
 """
 from __future__ import annotations
 

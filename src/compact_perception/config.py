@@ -402,12 +402,40 @@ class Params(Strict):
     baseline_seeds: list[int] = Field(min_length=1, description="training seeds of the baselines (fewer at the "
                                       "default scale: a GradNorm SegNet run costs ~4 compact runs)")
 
+    sim_ids: list[str] = Field(min_length=1, description="simulated datasets (generate/preprocess matrix)")
+    dataset_ids: list[str] = Field(min_length=1, description="datasets trained and evaluated (train matrices)")
+    compact_ids: list[str] = Field(min_length=1, description="compact models (train matrix, per `seeds`)")
+    baseline_ids: list[str] = Field(description="baselines (train_baseline matrix, per `baseline_seeds`)")
+    model_ids: list[str] = Field(min_length=1, description="every model evaluated: compact_ids + baseline_ids")
+
     @field_validator("seeds", "baseline_seeds")
     @classmethod
     def _seeds(cls, v: list[int]) -> list[int]:
         if any(k < 0 for k in v) or len(set(v)) != len(v):
             raise ValueError(f"expected distinct non-negative integers, got {v}")
         return v
+
+    @field_validator("sim_ids", "dataset_ids", "compact_ids", "baseline_ids", "model_ids")
+    @classmethod
+    def _ids(cls, v: list[str]) -> list[str]:
+        if len(set(v)) != len(v):
+            raise ValueError(f"expected distinct ids, got {v}")
+        return v
+
+    @model_validator(mode="after")
+    def _id_lists(self) -> "Params":
+        known = list(DatasetsParams.model_fields)
+        for key in ("sim_ids", "dataset_ids"):
+            bad = [d for d in getattr(self, key) if d not in known]
+            if bad:
+                raise ValueError(f"{key}: unknown dataset(s) {bad}; known: {known}")
+        if self.model_ids != self.compact_ids + self.baseline_ids:
+            raise ValueError(f"model_ids: expected compact_ids + baseline_ids = {self.compact_ids + self.baseline_ids}, "
+                             f"got {self.model_ids}")
+        missing = [m for m in self.model_ids if m not in self.train.models]
+        if missing:
+            raise ValueError(f"model_ids: no recipe train.models.<id> for {missing}")
+        return self
 
     def study_recipe(self, arm: str) -> ModelRecipe:
         """The recipe of study arm ``arm``: ``study.base_model``'s recipe with the arm's weighting."""

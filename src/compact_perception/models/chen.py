@@ -37,6 +37,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from ..catalog import ModelInfo
+from .base import DatasetSpec, register_network
 from .blocks import losses_module
 
 Z1, Z2, FEAT = 32, 256, 256
@@ -189,3 +191,9 @@ class ChenBEV(nn.Module):
     def shared_layers(self) -> dict[str, list[str]]:
         """Single-task model: nothing is shared between tasks."""
         return {}
+
+
+@register_network("chen_bev")
+def _build(ds: DatasetSpec, info: ModelInfo) -> nn.Module:
+    """Chen et al.'s BEV network (BEVP)."""
+    return ChenBEV(ds.n_seg, ds.n_bev)

@@ -38,6 +38,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
+from ..catalog import ModelInfo
+from .base import DatasetSpec, register_network
 from .blocks import ConvBlock, down, kaiming_init_, losses_module, up
 
 CH: tuple[int, int, int, int] = (16, 32, 64, 128)
@@ -157,3 +159,10 @@ class CompactPerception(nn.Module):
         """MGN's W(s) (eq. 6): first conv of bottleneck 1 (DE/SS/LS) and of bottleneck 2 (BEVP)."""
         w1, w2 = ["bottleneck1.conv1"], ["bottleneck2.conv1"]
         return {"de": list(w1), "ss": list(w1), "ls": list(w1), "bevp": w2}
+
+
+@register_network("compact")
+def _build(ds: DatasetSpec, info: ModelInfo) -> nn.Module:
+    """The compact network of section III-A for a dataset (1 or 15 LiDAR channels, DVS or not)."""
+    return CompactPerception(ds.n_seg, ds.n_bev, lidar_channels=info.lidar_channels, has_dvs=ds.has_dvs,
+                             n_views=ds.n_views)

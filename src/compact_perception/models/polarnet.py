@@ -21,6 +21,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from ..catalog import ModelInfo
+from .base import DatasetSpec, register_network
 from .blocks import log_probs, losses_module
 
 
@@ -101,3 +103,9 @@ class PolarNet(nn.Module):
     def shared_layers(self) -> dict[str, list[str]]:
         """Single-task model: nothing is shared between tasks."""
         return {}
+
+
+@register_network("polarnet")
+def _build(ds: DatasetSpec, info: ModelInfo) -> nn.Module:
+    """PolarNet (LS) on the model's LiDAR channels."""
+    return PolarNet(ds.n_seg, in_ch=info.lidar_channels)

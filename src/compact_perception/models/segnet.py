@@ -26,6 +26,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from ..catalog import ModelInfo
+from .base import DatasetSpec, register_network
 from .blocks import log_probs, losses_module
 
 ENC_STAGES: tuple[tuple[int, ...], ...] = ((64, 64), (128, 128), (256, 256, 256), (512, 512, 512), (512, 512, 512))
@@ -104,3 +106,9 @@ class GradNormSegNet(nn.Module):
         """The last shared conv of every view's network, for both tasks."""
         names = [f"views.{v}.{SegNet.last_shared}" for v in range(len(self.views))]
         return {"de": list(names), "ss": list(names)}
+
+
+@register_network("gradnorm_segnet")
+def _build(ds: DatasetSpec, info: ModelInfo) -> nn.Module:
+    """GradNorm's SegNet (DE + SS) on a dataset's views."""
+    return GradNormSegNet(ds.n_seg, n_views=ds.n_views)

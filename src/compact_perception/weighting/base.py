@@ -28,6 +28,7 @@ class LossWeighting:
     settings).
     """
 
+    key: ClassVar[str]                   # the registry id (set by :func:`register`)
     label: ClassVar[str]
     params_model: ClassVar[type | None]
     grad_scale: float = 1.0
@@ -54,6 +55,18 @@ class LossWeighting:
         self.w: Tensor = torch.tensor(w, dtype=torch.float64)
         self.plateau_patience = int(plateau_patience)
         self.plateau_factor = float(plateau_factor)
+
+    @classmethod
+    def from_recipe(cls, recipe: Any, tasks: Sequence[str], model: nn.Module | None = None,
+                    **kw: Any) -> "LossWeighting":
+        """The weighting of a training recipe: the recipe's section named like the registry id
+        (``uw: {lr: ...}``), validated by ``params_model``, passed as keyword arguments with
+        ``plateau_patience``/``plateau_factor`` (``kw``). Methods that need more (the network's
+        shared layers: MGN, GradNorm) override it."""
+        settings: dict[str, Any] = {}
+        if cls.params_model is not None:
+            settings = dict(recipe_params(recipe, cls.key, cls.params_model))
+        return cls(tasks, **settings, plateau_patience=kw["plateau_patience"], plateau_factor=kw["plateau_factor"])
 
     # ------------------------------------------------------------------ weights
     @property
@@ -126,8 +139,14 @@ WEIGHTINGS: Registry[type[LossWeighting]] = Registry("loss weighting")
 
 
 def register(key: str) -> Callable[[type[LossWeighting]], type[LossWeighting]]:
-    """Class decorator: ``@register("uw")`` makes the class the weighting ``uw`` of params.yaml."""
-    return WEIGHTINGS.register(key)
+    """Class decorator: ``@register("uw")`` makes the class the weighting ``uw`` of params.yaml
+    (and sets its ``key``, the name of its recipe section)."""
+
+    def deco(cls: type[LossWeighting]) -> type[LossWeighting]:
+        cls.key = key
+        return WEIGHTINGS.register(key)(cls)
+
+    return deco
 
 
 def shared_weights(model: nn.Module, names: Sequence[str]) -> list[nn.Parameter]:

@@ -28,7 +28,7 @@ from pydantic import Field
 from torch import Tensor, nn
 
 from ..config import Strict
-from .base import LossWeighting, recipe_params, register
+from .base import LossWeighting, register
 from .gradients import shared_gram, task_gradients, unweighted_total, write_combination
 
 __all__ = ["CAGradParams", "CAGradWeighting", "cagrad_coefficients"]
@@ -173,13 +173,6 @@ class CAGradWeighting(LossWeighting):
         self.epoch_steps = 0
         self.epoch_mean: list[float] | None = None
         self.last: dict[str, Any] = {}
-
-    @classmethod
-    def from_recipe(cls, recipe: Any, tasks: Sequence[str], model: nn.Module | None = None,
-                    **kw: Any) -> "CAGradWeighting":
-        """Reads ``recipe.section("cagrad")`` (:class:`CAGradParams`)."""
-        p = recipe_params(recipe, "cagrad", CAGradParams)
-        return cls(tasks, c=p.c, plateau_patience=kw["plateau_patience"], plateau_factor=kw["plateau_factor"])
 
     def backward(self, losses: Mapping[str, Tensor], model: nn.Module,
                  scale: Callable[[Tensor], Tensor] = lambda t: t) -> Tensor:

@@ -19,7 +19,7 @@ from pydantic import Field
 from torch import Tensor, nn
 
 from ..config import Strict
-from .base import LossWeighting, recipe_params, register
+from .base import LossWeighting, register
 
 __all__ = ["DWAParams", "DWAWeighting"]
 
@@ -55,14 +55,6 @@ class DWAWeighting(LossWeighting):
         self.counts = [0] * self.T
         self.history: list[list[float]] = []  # epoch means L(t-2), L(t-1), oldest first
         self.n_epochs = 0  # recorded epochs
-
-    @classmethod
-    def from_recipe(cls, recipe: Any, tasks: Sequence[str], model: nn.Module | None = None,
-                    **kw: Any) -> "DWAWeighting":
-        """Reads ``recipe.section("dwa")`` (:class:`DWAParams`)."""
-        p = recipe_params(recipe, "dwa", DWAParams)
-        return cls(tasks, temperature=p.temperature, plateau_patience=kw["plateau_patience"],
-                   plateau_factor=kw["plateau_factor"])
 
     def before_backward(self, step: int, n_steps: int, losses: Mapping[str, Tensor], model: nn.Module) -> None:
         """Accumulate this step's task losses into the epoch's sums."""

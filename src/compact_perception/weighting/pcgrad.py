@@ -31,7 +31,7 @@ from pydantic import Field
 from torch import Tensor, nn
 
 from ..config import Strict
-from .base import LossWeighting, recipe_params, register
+from .base import LossWeighting, register
 from .gradients import shared_gram, task_gradients, unweighted_total, write_combination
 
 __all__ = ["PCGradParams", "PCGradWeighting"]
@@ -78,13 +78,6 @@ class PCGradWeighting(LossWeighting):
         self.epoch_conflicts = 0
         self.conflicts_per_step = 0.0  # mean over the last finished epoch
         self.last: dict[str, Any] = {}
-
-    @classmethod
-    def from_recipe(cls, recipe: Any, tasks: Sequence[str], model: nn.Module | None = None,
-                    **kw: Any) -> "PCGradWeighting":
-        """Reads ``recipe.section("pcgrad")`` (:class:`PCGradParams`)."""
-        p = recipe_params(recipe, "pcgrad", PCGradParams)
-        return cls(tasks, seed=p.seed, plateau_patience=kw["plateau_patience"], plateau_factor=kw["plateau_factor"])
 
     def project(self, gram: Tensor) -> tuple[list[float], int]:
         """Algorithm 1 on the Gram matrix: returns ``c`` with ``sum_i g_i^PC = sum_k c_k g_k`` and

@@ -8,12 +8,10 @@ The weights never change.
 """
 from __future__ import annotations
 
-from typing import Any, Sequence
-
-from torch import nn
+from typing import Sequence
 
 from ..config import Strict
-from .base import LossWeighting, recipe_params, register
+from .base import LossWeighting, register
 
 __all__ = ["SingleTaskParams", "SingleTaskWeighting"]
 
@@ -38,8 +36,3 @@ class SingleTaskWeighting(LossWeighting):
                          plateau_factor=plateau_factor)
         self.task = task
 
-    @classmethod
-    def from_recipe(cls, recipe: Any, tasks: Sequence[str], model: nn.Module | None = None,
-                    **kw: Any) -> "SingleTaskWeighting":
-        p = recipe_params(recipe, "single", SingleTaskParams)
-        return cls(tasks, task=p.task, plateau_patience=kw["plateau_patience"], plateau_factor=kw["plateau_factor"])

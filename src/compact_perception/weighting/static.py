@@ -1,11 +1,6 @@
 """Static weights (the 1L / 15L variants, w_i = 1) and 'none' (plain unweighted sum)."""
 from __future__ import annotations
 
-from typing import Sequence
-
-from torch import nn
-
-from ..config import ModelRecipe
 from .base import LossWeighting, register
 
 __all__ = ["StaticWeighting", "NoWeighting"]
@@ -17,10 +12,6 @@ class StaticWeighting(LossWeighting):
 
     label = "Equal static weights"
     params_model = None
-
-    @classmethod
-    def from_recipe(cls, recipe: ModelRecipe, tasks: Sequence[str], model: nn.Module | None = None, **kw) -> "StaticWeighting":
-        return cls(tasks, plateau_patience=kw["plateau_patience"], plateau_factor=kw["plateau_factor"])
 
 
 @register("none")

@@ -22,7 +22,7 @@ from pydantic import Field
 from torch import Tensor, nn
 
 from ..config import Strict
-from .base import LossWeighting, recipe_params, register
+from .base import LossWeighting, register
 
 __all__ = ["UWParams", "UncertaintyWeighting"]
 
@@ -60,13 +60,6 @@ class UncertaintyWeighting(LossWeighting):
         self.opt = torch.optim.Adam([self.s], lr=self.lr)
         self.n_updates = 0
         self.last: dict[str, Any] = {}
-
-    @classmethod
-    def from_recipe(cls, recipe: Any, tasks: Sequence[str], model: nn.Module | None = None,
-                    **kw: Any) -> "UncertaintyWeighting":
-        """Reads ``recipe.section("uw")`` (:class:`UWParams`)."""
-        p = recipe_params(recipe, "uw", UWParams)
-        return cls(tasks, lr=p.lr, plateau_patience=kw["plateau_patience"], plateau_factor=kw["plateau_factor"])
 
     def backward(self, losses: Mapping[str, Tensor], model: nn.Module,
                  scale: Callable[[Tensor], Tensor] = lambda t: t) -> Tensor:
