@@ -152,3 +152,22 @@ def test_every_network_is_registered_by_its_own_module():
     assert networks == set(NETWORKS.keys())
     for m in catalog.model_ids():
         assert set(build_model(m, catalog.dataset_ids()[0]).tasks) == set(catalog.MODELS[m].tasks), m
+
+
+def test_depth_metrics_derive_from_their_registry():
+    """A new depth metric is one entry of metrics.DEPTH_METRICS: evaluation computes and
+    summarises it, the report's extra-metrics table gets its columns, label and decimals."""
+    import torch
+
+    from compact_perception import evaluate
+    from compact_perception.metrics import DEPTH_METRICS, depth_errors_per_sample
+    from compact_perception.report import tables
+
+    keys = tuple(DEPTH_METRICS.keys())
+    assert evaluate.DEPTH_COLUMNS == keys and tables.EXTRA_DEPTH == keys
+    for k in keys:
+        assert DEPTH_METRICS[k].definition in evaluate.DEPTH_DEFINITION
+        assert tables.EXTRA_MD[k] == DEPTH_METRICS[k].label
+        assert f"{k}_mean" in tables.extra_csv([]).splitlines()[0]
+    x = torch.full((1, 4, 1, 2, 2), 0.5, dtype=torch.float64)
+    assert set(depth_errors_per_sample(x, x)) == set(keys) | {"n_valid"}

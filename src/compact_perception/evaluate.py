@@ -27,8 +27,8 @@ from tqdm.auto import tqdm
 from . import catalog, io
 from .data import make_loader, to_device
 from .determinism import resolve_device, set_threads
-from .metrics import (MV_DEFINITION, class_confusion, class_iou, compute_metrics, depth_errors_per_sample,
-                      mean_iou, multilabel_confusion, scores_from_means, total_metric)
+from .metrics import (DEPTH_METRICS, MV_DEFINITION, class_confusion, class_iou, compute_metrics,
+                      depth_errors_per_sample, mean_iou, multilabel_confusion, scores_from_means, total_metric)
 from .models import build_model
 
 log = logging.getLogger(__name__)
@@ -43,7 +43,7 @@ SOURCE_LABEL = {
 
 
 SCORE_COLUMNS: tuple[str, ...] = catalog.metric_keys()
-DEPTH_COLUMNS: tuple[str, ...] = ("abs_rel", "rmse_m", "delta_1.25")
+DEPTH_COLUMNS: tuple[str, ...] = tuple(DEPTH_METRICS.keys())
 CLASS_IOU_DEFINITION = (
     "per-class IoU = TP / (TP + FP + FN) from counts summed over all test frames; SS and LS: predicted class = "
     "arg-max over the classes, pixels without a ground-truth label left out; BEVP: each class a binary mask, "
@@ -53,9 +53,9 @@ CLASS_IOU_DEFINITION = (
 DEPTH_DEFINITION = (
     "metric depth d = 1000 m * exp((x - 1) * 5.70378) from the cache's CARLA log depth x in [0, 1] (prediction "
     "clamped to [0, 1]: 3.33 m .. 1000 m); pixels with ground truth x = 0 (no depth) or x = 1 (1000 m far clip, "
-    "sky) left out; per frame over the valid pixels of the 4 views: AbsRel = mean |d - d*| / d*, RMSE in metres, "
-    "delta_1.25 = share with max(d/d*, d*/d) < 1.25; reported as mean and population variance over the frames "
-    "that have valid pixels"
+    "sky) left out; per frame over the valid pixels of the 4 views: "
+    + ", ".join(DEPTH_METRICS[k].definition for k in DEPTH_COLUMNS)
+    + "; reported as mean and population variance over the frames that have valid pixels"
 )
 
 
@@ -91,7 +91,7 @@ def summarise_depth(per_frame: pd.DataFrame) -> dict | None:
     """Mean and variance over frames (those with valid pixels) of the depth errors."""
     if not all(c in per_frame for c in DEPTH_COLUMNS):
         return None
-    ok = per_frame["abs_rel"].notna()
+    ok = per_frame[DEPTH_COLUMNS[0]].notna()  # every depth metric is NaN exactly on frames without valid pixels
     out: dict = {c: _mean_var(per_frame.loc[ok, c]) if ok.any() else None for c in DEPTH_COLUMNS}
     out.update({"n_frames": int(ok.sum()), "definition": DEPTH_DEFINITION})
     return out

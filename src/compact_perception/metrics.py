@@ -21,8 +21,10 @@ Metrics the field expects, beside the paper's (not in the paper):
   over the test set by the caller; :func:`class_iou` = TP / (TP + FP + FN) per class and
   :func:`mean_iou` over the classes present (a class with TP + FP + FN = 0, absent from both
   prediction and ground truth, has no IoU and is left out of the mean).
-- :func:`decode_log_depth` and :func:`depth_errors_per_sample`: AbsRel, RMSE (m) and the
-  delta < 1.25 accuracy on metric depth decoded from the cache's CARLA log encoding.
+- :func:`decode_log_depth` and :func:`depth_errors_per_sample`: the metric-depth errors of the
+  registry :data:`DEPTH_METRICS` (AbsRel, RMSE (m), the delta < 1.25 accuracy) on metric depth
+  decoded from the cache's CARLA log encoding. A new depth metric is one registry entry here:
+  evaluation's columns and the report's table derive from the registry.
 
 Batch-level functions (:func:`mae`, :func:`iou`, :func:`compute_metrics`) pool all elements of
 the batch (per view for IoU); the ``*_per_sample`` variants return one value per sample, (B,),
@@ -30,7 +32,8 @@ for the batch-1 test evaluation of Table II (mean +- variance over test frames).
 """
 from __future__ import annotations
 
-from typing import Any, Collection, Mapping, Union
+from dataclasses import dataclass
+from typing import Any, Callable, Collection, Literal, Mapping, Union
 
 import numpy as np
 import torch
@@ -39,9 +42,9 @@ from torch import Tensor
 
 from . import catalog
 from .losses import as_views
+from .registry import Registry
 
 __all__ = [
-    "TASKS",
     "mae",
     "mae_per_sample",
     "iou",
@@ -65,9 +68,10 @@ __all__ = [
     "decode_log_depth",
     "depth_valid_mask",
     "depth_errors_per_sample",
+    "DepthMetric",
+    "DEPTH_METRICS",
 ]
 
-TASKS = ("de", "ss", "ls", "bevp")
 Number = Union[float, Tensor, np.ndarray]
 
 
@@ -313,12 +317,37 @@ def depth_valid_mask(target: Tensor) -> Tensor:
     return (target > 0.0) & (target < 1.0)
 
 
+@dataclass(frozen=True)
+class DepthMetric:
+    """A metric-depth error beyond the paper: per frame, ``finish(mean over the valid pixels of
+    per_pixel(d, d*))``, with d the decoded prediction and d* the decoded ground truth (m)."""
+
+    label: str                                   # report label: "RMSE (m)"
+    definition: str                              # how it is computed, in words (metrics.json)
+    direction: Literal["lower", "higher"]
+    decimals: int                                # digits in the report's table
+    per_pixel: Callable[[Tensor, Tensor], Tensor]
+    finish: Callable[[Tensor], Tensor] = lambda x: x
+
+
+#: depth metric id (the metrics.json key) -> its definition; evaluation and the report iterate it
+DEPTH_METRICS: Registry[DepthMetric] = Registry("depth metric", ordered=True)
+DEPTH_METRICS.register("abs_rel")(DepthMetric(
+    "AbsRel", "AbsRel = mean |d - d*| / d*", "lower", 3, lambda d, g: (d - g).abs() / g))
+DEPTH_METRICS.register("rmse_m")(DepthMetric(
+    "RMSE (m)", "RMSE in metres", "lower", 2, lambda d, g: (d - g) ** 2, torch.sqrt))
+DEPTH_METRICS.register("delta_1.25")(DepthMetric(
+    "δ<1.25", "delta_1.25 = share with max(d/d*, d*/d) < 1.25", "higher", 3,
+    lambda d, g: (torch.maximum(d / g, g / d) < 1.25).double()))
+
+
 @torch.no_grad()
 def depth_errors_per_sample(pred: Tensor, target: Tensor) -> dict[str, Tensor]:
-    """Per sample (B,): ``abs_rel`` = mean |d - d*| / d*, ``rmse_m`` = sqrt(mean (d - d*)^2)
-    in metres, ``delta_1.25`` = share of pixels with max(d/d*, d*/d) < 1.25, and ``n_valid``,
-    over the valid ground-truth pixels (:func:`depth_valid_mask`) of all views; d is the
-    decoded prediction, d* the decoded ground truth. A sample without valid pixels gives NaN."""
+    """Per sample (B,): every metric of :data:`DEPTH_METRICS` (``abs_rel`` = mean |d - d*| / d*,
+    ``rmse_m`` = sqrt(mean (d - d*)^2) in metres, ``delta_1.25`` = share of pixels with
+    max(d/d*, d*/d) < 1.25), and ``n_valid``, over the valid ground-truth pixels
+    (:func:`depth_valid_mask`) of all views; d is the decoded prediction, d* the decoded ground
+    truth. A sample without valid pixels gives NaN."""
     p, g = pred.detach(), target.detach()
     if p.shape != g.shape:
         raise ValueError(f"depth_errors_per_sample: prediction {tuple(p.shape)} and target {tuple(g.shape)} differ")
@@ -328,12 +357,11 @@ def depth_errors_per_sample(pred: Tensor, target: Tensor) -> dict[str, Tensor]:
     n = valid.sum(dim=1).double()
     safe_n = n.clamp(min=1.0)
     v = valid.double()
-    abs_rel = ((d - d_gt).abs() / d_gt * v).sum(dim=1) / safe_n
-    rmse = torch.sqrt(((d - d_gt) ** 2 * v).sum(dim=1) / safe_n)
-    ratio = torch.maximum(d / d_gt, d_gt / d)
-    delta = ((ratio < 1.25).double() * v).sum(dim=1) / safe_n
     nan = torch.full_like(n, float("nan"))
-    out = {"abs_rel": abs_rel, "rmse_m": rmse, "delta_1.25": delta}
-    out = {k: torch.where(n > 0, x, nan).cpu() for k, x in out.items()}
+    out: dict[str, Tensor] = {}
+    for key in DEPTH_METRICS.keys():
+        m = DEPTH_METRICS[key]
+        x = m.finish((m.per_pixel(d, d_gt) * v).sum(dim=1) / safe_n)
+        out[key] = torch.where(n > 0, x, nan).cpu()
     out["n_valid"] = n.cpu()
     return out

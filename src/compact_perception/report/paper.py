@@ -50,7 +50,7 @@ class PaperCell:
 
 
 @dataclass(frozen=True)
-class Table2Row:
+class PrintedTable2Row:
     """One printed row of Table II (``combination`` carries only tm and mv)."""
 
     row_id: str
@@ -73,7 +73,7 @@ class Table2Row:
 
 
 @dataclass(frozen=True)
-class Table3Row:
+class PrintedTable3Row:
     """One printed row of Table III (sizes and memory in MB)."""
 
     row_id: str
@@ -92,17 +92,17 @@ class Table3Row:
 class PaperNumbers:
     """Everything transcribed from the paper."""
 
-    table2: dict[str, dict[str, Table2Row]]          # dataset -> row id -> row
+    table2: dict[str, dict[str, PrintedTable2Row]]          # dataset -> row id -> row
     table2_labels: dict[str, str]                     # dataset -> printed label
-    table3: dict[str, dict[str, Table3Row]]          # group -> row id -> row
+    table3: dict[str, dict[str, PrintedTable3Row]]          # group -> row id -> row
     table3_labels: dict[str, str]
     table3_device: str
     raw: dict[str, Any] = field(repr=False, default_factory=dict)
 
-    def table2_row(self, dataset: str, row_id: str) -> Optional[Table2Row]:
+    def table2_row(self, dataset: str, row_id: str) -> Optional[PrintedTable2Row]:
         return self.table2.get(dataset, {}).get(row_id)
 
-    def table3_row(self, dataset: str, row_id: str) -> Optional[Table3Row]:
+    def table3_row(self, dataset: str, row_id: str) -> Optional[PrintedTable3Row]:
         """Table III row for a dataset (A, B, C share the simulation group)."""
         return self.table3.get(TABLE3_GROUP.get(dataset, dataset), {}).get(row_id)
 
@@ -135,11 +135,11 @@ def parse_paper_numbers(data: dict[str, Any], source: str = "paper_numbers.yaml"
         t2_raw, t3_raw = data["table2"]["datasets"], data["table3"]["groups"]
     except (KeyError, TypeError) as err:
         raise PaperNumbersError(f"{source}: missing section {err}") from None
-    table2: dict[str, dict[str, Table2Row]] = {}
+    table2: dict[str, dict[str, PrintedTable2Row]] = {}
     labels2: dict[str, str] = {}
     for ds, block in t2_raw.items():
         labels2[ds] = str(block.get("label", ds))
-        rows: dict[str, Table2Row] = {}
+        rows: dict[str, PrintedTable2Row] = {}
         for rid, r in block["rows"].items():
             where = f"{source}: table2.datasets.{ds}.rows.{rid}"
             if rid not in ROW_IDS:
@@ -147,7 +147,7 @@ def parse_paper_numbers(data: dict[str, Any], source: str = "paper_numbers.yaml"
             unknown = set(r) - set(TABLE2_COLUMNS) - {"label", "bold", "bold_label", "printed_on"}
             if unknown:
                 raise PaperNumbersError(f"{where}: unknown key(s) {sorted(unknown)}")
-            rows[rid] = Table2Row(
+            rows[rid] = PrintedTable2Row(
                 row_id=rid, label=str(r.get("label", rid)),
                 cells={c: _cell(r.get(c), f"{where}.{c}") for c in TASK_COLUMNS},
                 tm=_opt_float(r.get("tm"), f"{where}.tm"), mv=_opt_float(r.get("mv"), f"{where}.mv"),
@@ -155,18 +155,18 @@ def parse_paper_numbers(data: dict[str, Any], source: str = "paper_numbers.yaml"
                 printed_on=r.get("printed_on"),
             )
         table2[ds] = rows
-    table3: dict[str, dict[str, Table3Row]] = {}
+    table3: dict[str, dict[str, PrintedTable3Row]] = {}
     labels3: dict[str, str] = {}
-    fields3 = set(Table3Row.__dataclass_fields__) - {"row_id"}
+    fields3 = set(PrintedTable3Row.__dataclass_fields__) - {"row_id"}
     for grp, block in t3_raw.items():
         labels3[grp] = str(block.get("label", grp))
-        rows3: dict[str, Table3Row] = {}
+        rows3: dict[str, PrintedTable3Row] = {}
         for rid, r in block["rows"].items():
             where = f"{source}: table3.groups.{grp}.rows.{rid}"
             unknown = set(r) - fields3
             if unknown:
                 raise PaperNumbersError(f"{where}: unknown key(s) {sorted(unknown)}")
-            rows3[rid] = Table3Row(row_id=rid, **r)
+            rows3[rid] = PrintedTable3Row(row_id=rid, **r)
         table3[grp] = rows3
     return PaperNumbers(table2, labels2, table3, labels3, str(data["table3"].get("device", "")), data)
 

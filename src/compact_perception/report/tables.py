@@ -44,7 +44,7 @@ import numpy as np
 import pandas as pd
 
 from .. import catalog, io
-from ..metrics import scores_from_means
+from ..metrics import DEPTH_METRICS, scores_from_means
 from ..stats import REPRODUCED, BootstrapResult, paired_bootstrap, stat_mean, stat_mv, stat_tm, verdict
 from .collect import (COMBINATION_SOURCE, Cell, DatasetScale, ModelResult, ReportInputError, aggregate_cells, align,
                       pair_by_seed)
@@ -743,9 +743,9 @@ def write_comparison(paper: PaperNumbers, table2: dict[str, list[Table2Row]],
 
 # ----------------------------------------------------------------------------- metrics beyond the paper
 EXTRA_TASKS: tuple[str, ...] = ("ss", "ls", "bevp")
-EXTRA_DEPTH: tuple[str, ...] = ("abs_rel", "rmse_m", "delta_1.25")
-EXTRA_MD: dict[str, str] = {"ss": "mIoU_SS", "ls": "mIoU_LS", "bevp": "mIoU_BEVP", "abs_rel": "AbsRel",
-                            "rmse_m": "RMSE (m)", "delta_1.25": "δ<1.25"}
+EXTRA_DEPTH: tuple[str, ...] = tuple(DEPTH_METRICS.keys())
+EXTRA_MD: dict[str, str] = {**{t: f"mIoU_{catalog.TASKS[t].label}" for t in EXTRA_TASKS},
+                            **{k: DEPTH_METRICS[k].label for k in EXTRA_DEPTH}}
 
 
 @dataclass
@@ -834,9 +834,14 @@ def _extra_texts(r: ExtraRow) -> list[str]:
         if c is None:
             texts += [NOT_APPLICABLE, NOT_APPLICABLE]
         else:
-            nd = 2 if k == "rmse_m" else 3
+            nd = DEPTH_METRICS[k].decimals
             texts += [fmt_seeds(c, decimals=nd), "" if c.var is None else f"{c.var:.{nd}f}"]
     return texts
+
+
+def _and(words: Sequence[str]) -> str:
+    """``a, b and c``."""
+    return words[0] if len(words) == 1 else ", ".join(words[:-1]) + " and " + words[-1]
 
 
 def extra_markdown(rows: list[ExtraRow]) -> str:
@@ -857,8 +862,9 @@ def extra_markdown(rows: list[ExtraRow]) -> str:
             "pixels without a label left out; BEVP: each class a binary mask (> 0.5). Depth: metric depth "
             "d = 1000 m · exp((x − 1) · 5.70378) decoded from the cache's CARLA log depth x ∈ [0, 1] (the world's and "
             "the nuScenes ingest's encoding; prediction clamped to [0, 1], i.e. 3.33 m to 1000 m); pixels with ground "
-            "truth x = 0 (no depth) or x = 1 (1000 m far clip, sky) left out; AbsRel, RMSE and δ<1.25 per frame over "
-            "the valid pixels of the four views. Per-class IoUs (mean over the seeds where the class has one): "
+            "truth x = 0 (no depth) or x = 1 (1000 m far clip, sky) left out; "
+            f"{_and([EXTRA_MD[k] for k in EXTRA_DEPTH])} per frame over the valid pixels of the four views "
+            f"({'; '.join(DEPTH_METRICS[k].definition for k in EXTRA_DEPTH)}). Per-class IoUs (mean over the seeds where the class has one): "
             f"`extra_metrics_per_class.csv`. `{NOT_APPLICABLE}`: task not performed; `{NOT_AVAILABLE}`: no class "
             "present.\n")
     return _md_table(header, body, ["---", "---", "---:"] + ["---:"] * (len(header) - 3)) + note
