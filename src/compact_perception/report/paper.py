@@ -92,9 +92,9 @@ class PrintedTable3Row:
 class PaperNumbers:
     """Everything transcribed from the paper."""
 
-    table2: dict[str, dict[str, PrintedTable2Row]]          # dataset -> row id -> row
-    table2_labels: dict[str, str]                     # dataset -> printed label
-    table3: dict[str, dict[str, PrintedTable3Row]]          # group -> row id -> row
+    table2: dict[str, dict[str, PrintedTable2Row]]   # dataset -> row id -> row
+    table2_labels: dict[str, str]                    # dataset -> printed label
+    table3: dict[str, dict[str, PrintedTable3Row]]   # group -> row id -> row
     table3_labels: dict[str, str]
     table3_device: str
     raw: dict[str, Any] = field(repr=False, default_factory=dict)

@@ -864,7 +864,8 @@ def extra_markdown(rows: list[ExtraRow]) -> str:
             "the nuScenes ingest's encoding; prediction clamped to [0, 1], i.e. 3.33 m to 1000 m); pixels with ground "
             "truth x = 0 (no depth) or x = 1 (1000 m far clip, sky) left out; "
             f"{_and([EXTRA_MD[k] for k in EXTRA_DEPTH])} per frame over the valid pixels of the four views "
-            f"({'; '.join(DEPTH_METRICS[k].definition for k in EXTRA_DEPTH)}). Per-class IoUs (mean over the seeds where the class has one): "
+            f"({'; '.join(DEPTH_METRICS[k].definition for k in EXTRA_DEPTH)}). "
+            "Per-class IoUs (mean over the seeds where the class has one): "
             f"`extra_metrics_per_class.csv`. `{NOT_APPLICABLE}`: task not performed; `{NOT_AVAILABLE}`: no class "
             "present.\n")
     return _md_table(header, body, ["---", "---", "---:"] + ["---:"] * (len(header) - 3)) + note
