@@ -48,7 +48,8 @@ def _files(root: Path) -> set[Path]:
     [
         (("train", "batch_size"), True, "train.batch_size"),
         (("train", "max_epochs", "default"), 0, "train.max_epochs"),
-        (("train", "models", "gradnorm_segnet", "max_epochs", "paper"), 0, "train.models.gradnorm_segnet.max_epochs"),
+        (("train", "models", "gradnorm_segnet", "max_epochs"), {"default": 3, "paper": 0},
+         "train.models.gradnorm_segnet.max_epochs"),
         (("train", "models", "polarnet", "lr_min"), None, "train.models.polarnet.lr_min"),  # None: delete the key
         (("datasets", "A", "seed_offset"), None, "datasets.A.seed_offset"),
         (("preprocess", "fill_neighbours"), None, "preprocess.fill_neighbours"),

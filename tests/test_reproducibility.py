@@ -48,13 +48,13 @@ def cache(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def reference(tmp_path_factory, cache) -> tuple[bytes, dict]:
-    """One uninterrupted run at the default worker count (2)."""
+def reference(tmp_path_factory, cache) -> tuple[bytes, dict, bytes]:
+    """One uninterrupted run with 2 loader workers: its metrics.json, summary and best.pt bytes."""
     with (Path(__file__).resolve().parents[1] / "params.yaml").open() as fh:
         params = _params(yaml.safe_load(fh))
     run = tmp_path_factory.mktemp("ref") / "run"
     summary = train_run(params, "A", MODEL, 0, cache, run)
-    return _score(params, cache, run), summary
+    return _score(params, cache, run), summary, (run / "best.pt").read_bytes()
 
 
 @pytest.mark.slow
@@ -63,6 +63,8 @@ def test_worker_count_does_not_change_the_result(tmp_path, params_dict, cache, r
     summary = train_run(params, "A", MODEL, 0, cache, tmp_path / "run")
     assert summary["best_val_score"] == reference[1]["best_val_score"]
     assert _score(params, cache, tmp_path / "run") == reference[0]
+    # the checkpoint too, byte for byte (written under another random temporary name)
+    assert (tmp_path / "run" / "best.pt").read_bytes() == reference[2]
 
 
 @pytest.mark.slow

@@ -73,3 +73,23 @@ def test_disk_full_leaves_no_half_written_epoch(tmp_path, params_dict, monkeypat
         saved = torch.load(run / "last.pt", weights_only=False)["epoch"]
         logged = (run / "live" / "plots" / "metrics" / "lr.tsv").read_text().split()[2::2]
         assert logged == [str(e) for e in range(saved + 1)]
+
+
+def test_checkpoint_bytes_do_not_depend_on_the_temporary_name(tmp_path):
+    """Checkpoints are written under a random temporary name and renamed (nothing half-written);
+    torch.save given a path names the archive's root folder after the file, so the bytes must
+    be written through an open file to be the same on every run."""
+    from compact_perception import io
+    from compact_perception.train import _save
+
+    state = {"model": {"w": torch.arange(6.0).reshape(2, 3)}, "epoch": 1}
+    written = []
+    for name in ("a", "b"):
+        final = tmp_path / name / "best.pt"
+        final.parent.mkdir()
+        with io.atomic_path(final) as tmp:
+            assert tmp.name != final.name
+            _save(state, tmp, final)
+        written.append(final.read_bytes())
+    assert written[0] == written[1]
+    assert torch.equal(torch.load(tmp_path / "a" / "best.pt")["model"]["w"], state["model"]["w"])

@@ -102,7 +102,7 @@ class WorldParams(Strict):
     dvs: DvsParams
     conditions: ConditionParams
     frames_per_episode: int = Field(ge=1, le=10000, description="consecutive frames of one drive (a 'scene')")
-    workers: int = Field(2, ge=1, le=256, description="generator processes: any count gives the same files")
+    workers: int = Field(ge=1, le=256, description="generator processes: any count gives the same files")
 
     @field_validator("resolution")
     @classmethod
@@ -217,7 +217,7 @@ class PreprocessParams(Strict):
     z_max_m: float
     height_multiplier: int = Field(ge=1, le=64, description="eq. (5): channels 0..multiplier")
     fill_neighbours: bool
-    workers: int = Field(2, ge=1, le=256, description="preprocessing processes: any count gives the same cache")
+    workers: int = Field(ge=1, le=256, description="preprocessing processes: any count gives the same cache")
 
     @model_validator(mode="after")
     def _z(self) -> "PreprocessParams":
@@ -333,10 +333,10 @@ class TrainParams(Strict):
     plateau_threshold: float = Field(ge=0.0, lt=1.0, description="relative improvement the 'torch' plateau "
                                      "rule requires (ReduceLROnPlateau's threshold, mode 'rel')")
     early_stop_patience: int = Field(ge=1)
-    num_workers: int = Field(2, ge=0, description="loader processes: any count gives the same result")
+    num_workers: int = Field(ge=0, description="loader processes: any count gives the same result")
     num_threads: int = Field(ge=1, le=256, description="torch intra-op threads: a threaded reduction's "
                              "result depends on the count, so it is a tracked param (determinism.set_threads)")
-    device: Literal["auto", "cpu", "cuda"] = "auto"
+    device: Literal["auto", "cpu", "cuda"]
     precision: Literal["fp32", "bf16", "fp16", "auto"] = Field(
         description="fp32 (bit-reproducible), bf16/fp16 autocast, or auto: the fastest the hardware runs "
                     "natively (precision.resolve_precision); anything but fp32 lifts the CPU kernel pins")
@@ -349,6 +349,15 @@ class TrainParams(Strict):
     def _epochs(cls, v: Scaled[int]) -> Scaled[int]:
         return _scaled_at_least(v, 1)
 
+
+
+#: The dataset ids params.yaml knows (the sections of ``datasets``).
+DATASET_IDS: list[str] = list(DatasetsParams.model_fields)
+
+
+def _unknown_datasets(ids: list[str]) -> list[str]:
+    """The ids in ``ids`` that are not a section of ``datasets``."""
+    return [d for d in ids if d not in DATASET_IDS]
 
 
 class StudyParams(Strict):
@@ -368,10 +377,8 @@ class StudyParams(Strict):
     def _datasets(cls, v: Scaled[list[str]]) -> Scaled[list[str]]:
         for name in ("default", "paper"):
             ds = getattr(v, name)
-            known = list(DatasetsParams.model_fields)
-            bad = [d for d in ds if d not in known]
-            if not ds or bad:
-                raise ValueError(f"{name}: expected a non-empty list of {known}, got {ds}")
+            if not ds or _unknown_datasets(ds):
+                raise ValueError(f"{name}: expected a non-empty list of {DATASET_IDS}, got {ds}")
         return v
 
     @model_validator(mode="after")
@@ -424,11 +431,10 @@ class Params(Strict):
 
     @model_validator(mode="after")
     def _id_lists(self) -> "Params":
-        known = list(DatasetsParams.model_fields)
         for key in ("sim_ids", "dataset_ids"):
-            bad = [d for d in getattr(self, key) if d not in known]
+            bad = _unknown_datasets(getattr(self, key))
             if bad:
-                raise ValueError(f"{key}: unknown dataset(s) {bad}; known: {known}")
+                raise ValueError(f"{key}: unknown dataset(s) {bad}; known: {DATASET_IDS}")
         if self.model_ids != self.compact_ids + self.baseline_ids:
             raise ValueError(f"model_ids: expected compact_ids + baseline_ids = {self.compact_ids + self.baseline_ids}, "
                              f"got {self.model_ids}")

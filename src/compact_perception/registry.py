@@ -1,9 +1,19 @@
 """A tiny name -> factory registry, keyed by the ids used in params.yaml."""
 from __future__ import annotations
 
-from typing import Callable, Generic, Iterator, TypeVar
+import importlib
+import pkgutil
+from typing import Callable, Generic, Iterable, Iterator, TypeVar
 
 T = TypeVar("T")
+
+
+def import_submodules(package: str, path: Iterable[str]) -> None:
+    """Import every module of ``package`` (its ``__path__``), in name order, so the ones that
+    register an entry on import (``@register(...)``) need no line in the package's ``__init__``:
+    a new model network or weighting method is one new file."""
+    for name in sorted(m.name for m in pkgutil.iter_modules(path)):
+        importlib.import_module(f"{package}.{name}")
 
 
 class Registry(Generic[T]):

@@ -163,9 +163,14 @@ def evaluate_split(model: torch.nn.Module, loader, device: torch.device, spec: d
 
 def _save(obj: Any, path: Path, final: Path) -> None:
     """``torch.save`` whose write failures are :class:`OSError` naming the file. On a full disk
-    torch raises ``RuntimeError: [enforce fail at inline_container.cc] unexpected pos``."""
+    torch raises ``RuntimeError: [enforce fail at inline_container.cc] unexpected pos``.
+
+    It writes through an open file: given a path, torch names the archive's root folder after
+    the file, and ``path`` is a random temporary name (:func:`io.atomic_path`), so the same
+    checkpoint would get other bytes on every run."""
     try:
-        torch.save(obj, path)
+        with open(path, "wb") as f:
+            torch.save(obj, f)
     except OSError as err:
         raise OSError(err.errno, err.strerror, str(final)) from None
     except RuntimeError as err:

@@ -12,17 +12,14 @@ entry in ``catalog.py`` and its recipe and id in params.yaml.
 """
 from __future__ import annotations
 
-import importlib
-import pkgutil
-
 from torch import nn
 
 from .. import catalog
+from ..registry import import_submodules
 from .base import DATASETS, NETWORKS, DatasetSpec, register_network
 from .blocks import count_parameters
 
-for _mod in sorted(m.name for m in pkgutil.iter_modules(__path__)):
-    importlib.import_module(f"{__name__}.{_mod}")
+import_submodules(__name__, __path__)  # each network module registers itself
 
 from .chen import ChenBEV  # noqa: E402
 from .compact import CompactPerception  # noqa: E402

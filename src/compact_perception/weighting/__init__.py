@@ -62,19 +62,17 @@ so every weight stays strictly positive and sum w = T (see :class:`~.mgn.GradNor
 """
 from __future__ import annotations
 
-import importlib
-import pkgutil
 from typing import Any, Sequence
 
 from torch import nn
 
 from ..config import ModelRecipe
+from ..registry import import_submodules
 from .base import WEIGHTINGS, LossWeighting, register, shared_weights
 
 # Every module of this package registers its classes (``@register("id")``) on import; importing
 # them all here means a new method is one new file, found without editing this one.
-for _mod in sorted(m.name for m in pkgutil.iter_modules(__path__)):
-    importlib.import_module(f"{__name__}.{_mod}")
+import_submodules(__name__, __path__)
 
 from .cagrad import CAGradParams, CAGradWeighting  # noqa: E402
 from .dwa import DWAParams, DWAWeighting  # noqa: E402
