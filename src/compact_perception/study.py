@@ -33,7 +33,8 @@ def run_arm(params: Params, arm: str, seed: int, root: Path | str = ".") -> list
         paths = study_paths(arm, seed, ds, root)
         cache = Path(root) / "data" / "cache" / ds
         log.info("study arm %s (weighting %s), seed %d, dataset %s", arm, recipe.weighting, seed, ds)
-        train_run(params, ds, base, seed, cache, paths.run_dir, recipe=recipe, recipe_key=f"study.arms.{arm}")
+        train_run(params, ds, base, seed, cache, paths.run_dir, recipe=recipe, recipe_key=f"study.arms.{arm}",
+                  export_onnx=False)
         results.append(evaluate_run(ds, base, cache, paths.run_dir, paths.metrics_path, paths.eval_dir,
                                     device_pref=params.train.device, save_predictions=0,
                                     num_threads=params.train.num_threads))
