@@ -35,9 +35,9 @@ from typing import Any
 
 import torch
 
-from compact_perception.config import load_params
+from compact_perception.core.config import load_params
 from compact_perception.models import build_model
-from compact_perception.precision import (autocast_context, batch_to_channels_last, cpu_has_native_bf16,
+from compact_perception.training.precision import (autocast_context, batch_to_channels_last, cpu_has_native_bf16,
                                           float_outputs, make_grad_scaler, maybe_compile, resolve_precision,
                                           to_channels_last)
 from compact_perception.weighting import build_weighting

@@ -21,8 +21,8 @@ from typing import Iterator
 
 import numpy as np
 
-from compact_perception.cache import read_cache, write_cache
-from compact_perception.classes import BEV_NAMES, CARLA_NAMES
+from compact_perception.core.cache import read_cache, write_cache
+from compact_perception.core.classes import BEV_NAMES, CARLA_NAMES
 from compact_perception.data import make_loader
 from compact_perception.geometry import VIEWS
 from compact_perception.lidar import topview_15l

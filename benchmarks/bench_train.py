@@ -14,7 +14,7 @@ from contextlib import nullcontext
 
 import torch
 
-from compact_perception.config import load_params
+from compact_perception.core.config import load_params
 from compact_perception.models import build_model
 from compact_perception.weighting import build_weighting
 

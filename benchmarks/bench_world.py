@@ -8,7 +8,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from compact_perception.config import load_params
+from compact_perception.core.config import load_params
 from compact_perception.world.generate import render_episode
 from compact_perception.world.town import build_town
 

@@ -31,12 +31,12 @@ from pathlib import Path
 
 import torch
 
-from compact_perception.config import Scaled, load_params
+from compact_perception.core.config import Scaled, load_params
 from compact_perception.data import make_loader, to_device
-from compact_perception.determinism import set_threads
+from compact_perception.core.determinism import set_threads
 from compact_perception.metrics import class_confusion, class_iou, compute_metrics_per_sample, mean_iou
 from compact_perception.models import build_model
-from compact_perception.train import run_seed, seed_everything, train_run
+from compact_perception.training.train import run_seed, seed_everything, train_run
 from compact_perception.weighting.gradnorm import GradNormWeighting
 
 log = logging.getLogger("diagnose_gradnorm_segnet")

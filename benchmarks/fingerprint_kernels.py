@@ -22,7 +22,7 @@ recorded so far (the cache bytes are machine-independent: the data stages' hashe
 """
 from __future__ import annotations
 
-from compact_perception.determinism import pin_numeric_libraries
+from compact_perception.core.determinism import pin_numeric_libraries
 
 pin_numeric_libraries()  # before numpy/torch run anything, as every stage does
 
@@ -35,9 +35,9 @@ from pathlib import Path  # noqa: E402
 import torch  # noqa: E402
 from torch import Tensor, nn  # noqa: E402
 
-from compact_perception.config import load_params  # noqa: E402
+from compact_perception.core.config import load_params  # noqa: E402
 from compact_perception.data import make_loader, to_device  # noqa: E402
-from compact_perception.determinism import set_threads  # noqa: E402
+from compact_perception.core.determinism import set_threads  # noqa: E402
 from compact_perception.models import DATASETS, build_model, lidar_channels  # noqa: E402
 
 

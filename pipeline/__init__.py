@@ -5,7 +5,7 @@ Importing this package
   ``dvc.yaml`` lists as its dependencies (also in a ``dvc exp`` copy of the repository, where
   an editable install would point at the original checkout);
 - pins every numeric library to the same kernels on any x86-64 machine
-  (:mod:`compact_perception.determinism`) before numpy or torch compute anything.
+  (:mod:`compact_perception.core.determinism`) before numpy or torch compute anything.
 """
 import sys
 from pathlib import Path
@@ -14,7 +14,7 @@ _SRC = str(Path(__file__).resolve().parents[1] / "src")
 if Path(_SRC, "compact_perception").is_dir() and sys.path[:1] != [_SRC]:
     sys.path.insert(0, _SRC)
 
-from compact_perception.determinism import pin_numeric_libraries, pin_opencv  # noqa: E402
+from compact_perception.core.determinism import pin_numeric_libraries, pin_opencv  # noqa: E402
 
 pin_numeric_libraries()
 pin_opencv()

@@ -7,8 +7,8 @@ import sys
 import time
 from pathlib import Path
 
-from compact_perception.config import Params, ParamsError, load_params
-from compact_perception.params_audit import audited
+from compact_perception.core.config import Params, ParamsError, load_params
+from compact_perception.core.params_audit import audited
 
 
 def start(params_path: str | Path = "params.yaml") -> Params:

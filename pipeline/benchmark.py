@@ -20,8 +20,8 @@ from pathlib import Path
 
 import torch
 
-from compact_perception import io
-from compact_perception.catalog import model_ids
+from compact_perception.core import io
+from compact_perception.core.catalog import model_ids
 from compact_perception.models import DATASETS, build_model
 from compact_perception.report.efficiency import (CPU_MEMORY_METHOD, CUDA_MEMORY_METHOD, device_name,
                                                    dummy_batch, measure_fps, measure_model, measure_onnx)

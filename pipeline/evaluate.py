@@ -10,11 +10,11 @@ import argparse
 import sys
 from pathlib import Path
 
-from compact_perception.cache import CacheError
-from compact_perception.catalog import MODELS, dataset_ids, model_ids
+from compact_perception.core.cache import CacheError
+from compact_perception.core.catalog import MODELS, dataset_ids, model_ids
 from compact_perception.evaluate import evaluate_run
-from compact_perception.layout import run_paths
-from compact_perception.errors import RunError
+from compact_perception.core.layout import run_paths
+from compact_perception.core.errors import RunError
 
 from ._common import start
 

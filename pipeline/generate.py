@@ -10,7 +10,7 @@ import logging
 import sys
 from pathlib import Path
 
-from compact_perception.config import ParamsError
+from compact_perception.core.config import ParamsError
 
 from ._common import start
 
@@ -26,7 +26,7 @@ def main(argv: list[str] | None = None) -> int:
     dp = getattr(params.datasets, args.dataset)
     if dp.source == "authors":
         from compact_perception.authors import describe_authors_dataset
-        from compact_perception.errors import RecordError
+        from compact_perception.core.errors import RecordError
 
         try:
             describe_authors_dataset(dp.authors_root, dp.authors_splits, args.dataset, Path(args.out) / args.dataset,

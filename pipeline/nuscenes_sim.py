@@ -14,7 +14,7 @@ import sys
 
 from ._common import start
 
-from compact_perception import io
+from compact_perception.core import io
 from compact_perception.nuscenes import dataroot_problem
 from compact_perception.nuscenes.export import export_nuscenes_sim
 

@@ -9,8 +9,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from compact_perception.cache import CacheError
-from compact_perception.errors import RecordError
+from compact_perception.core.cache import CacheError
+from compact_perception.core.errors import RecordError
 from compact_perception.preprocess import preprocess_dataset
 
 from ._common import start

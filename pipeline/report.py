@@ -18,7 +18,7 @@ import sys
 from pathlib import Path
 from typing import Any, Optional
 
-from compact_perception.catalog import MODELS, dataset_ids, model_ids
+from compact_perception.core.catalog import MODELS, dataset_ids, model_ids
 from compact_perception.report.collect import ReportInputError
 from compact_perception.report.index import build_reports
 

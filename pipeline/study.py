@@ -8,9 +8,9 @@ from __future__ import annotations
 import argparse
 import sys
 
-from compact_perception.cache import CacheError
-from compact_perception.config import ParamsError
-from compact_perception.errors import RunError
+from compact_perception.core.cache import CacheError
+from compact_perception.core.config import ParamsError
+from compact_perception.core.errors import RunError
 from compact_perception.study import run_arm
 
 from ._common import start

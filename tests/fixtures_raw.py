@@ -6,9 +6,9 @@ from pathlib import Path
 
 import numpy as np
 
-from compact_perception.classes import BEV_NAMES, CARLA_NAMES, CARLA_PALETTE
+from compact_perception.core.classes import BEV_NAMES, CARLA_NAMES, CARLA_PALETTE
 from compact_perception.geometry import VIEWS
-from compact_perception.io import write_json, write_npz
+from compact_perception.core.io import write_json, write_npz
 
 
 def make_record(size: int = 16, seed: int = 0, n_points: int = 300, n_events: int = 50) -> dict[str, np.ndarray]:

@@ -5,8 +5,8 @@ from pathlib import Path
 
 import numpy as np
 
-from compact_perception.cache import write_cache
-from compact_perception.classes import BEV_NAMES, CARLA_NAMES, NUSCENES_NAMES
+from compact_perception.core.cache import write_cache
+from compact_perception.core.classes import BEV_NAMES, CARLA_NAMES, NUSCENES_NAMES
 from compact_perception.geometry import VIEWS
 
 

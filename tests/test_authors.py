@@ -18,9 +18,9 @@ import yaml
 
 import authors_fixture as fx
 from compact_perception.authors import ingest_authors, plan_authors
-from compact_perception.cache import read_cache
-from compact_perception.config import ParamsError, parse_params
-from compact_perception.errors import RecordError
+from compact_perception.core.cache import read_cache
+from compact_perception.core.config import ParamsError, parse_params
+from compact_perception.core.errors import RecordError
 from pipeline import generate as generate_stage
 from pipeline import preprocess as preprocess_stage
 
@@ -95,7 +95,7 @@ def test_no_import_cycle(root: Path) -> None:
     code = ("import sys, compact_perception.authors; "
             "assert 'compact_perception.preprocess' not in sys.modules, 'authors imports preprocess'; "
             "from compact_perception.preprocess import RecordError; "
-            "from compact_perception.errors import RecordError as E; assert RecordError is E")
+            "from compact_perception.core.errors import RecordError as E; assert RecordError is E")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=root, timeout=60)
     assert r.returncode == 0, r.stderr
 

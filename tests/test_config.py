@@ -7,8 +7,8 @@ import typing
 import pytest
 from pydantic import BaseModel
 
-from compact_perception import config
-from compact_perception.config import ParamsError, load_params, parse_params
+from compact_perception.core import config
+from compact_perception.core.config import ParamsError, load_params, parse_params
 
 
 def test_committed_params_are_valid(root):
@@ -161,7 +161,7 @@ def test_lr_floor_not_above_lr(params_dict):
 
 def test_optimizer_settings_belong_to_their_optimizer(params_dict):
     """Adam's betas/eps are required with adam and refused with sgd (no hidden torch defaults)."""
-    from compact_perception.config import ParamsError, parse_params
+    from compact_perception.core.config import ParamsError, parse_params
 
     adam = params_dict["train"]["models"]["polarnet"]
     del adam["betas"]

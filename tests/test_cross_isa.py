@@ -5,7 +5,7 @@ would bring (OpenBLAS picking another core type's kernels, numpy without its AVX
 PyTorch's ATen and oneDNN on other instruction sets, other thread counts). A tiny pipeline
 (generate, preprocess, the simulated nuScenes set and its ingestion, one training run and its
 evaluation) runs under both, and every output file must have the same hash. A control run of
-the other machine with the pins of :mod:`compact_perception.determinism` switched off shows
+the other machine with the pins of :mod:`compact_perception.core.determinism` switched off shows
 that the simulation is real: its bytes differ.
 """
 from __future__ import annotations

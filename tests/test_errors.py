@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from compact_perception.config import ParamsError, load_params
+from compact_perception.core.config import ParamsError, load_params
 
 from repo_params import ROOT, repo_params_dict
 from synthetic import make_cache

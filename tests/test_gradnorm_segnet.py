@@ -18,7 +18,7 @@ from torch import Tensor, nn
 from compact_perception.evaluate import frame_scores
 from compact_perception.metrics import class_confusion, class_iou, compute_metrics
 from compact_perception.models.segnet import GradNormSegNet
-from compact_perception.train import evaluate_split
+from compact_perception.training.train import evaluate_split
 
 N_CLS, S = 23, 32  # classes of the simulated sets, default resolution
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from compact_perception import io
-from compact_perception.classes import CARLA_PALETTE, index_to_palette, palette_to_index
+from compact_perception.core import io
+from compact_perception.core.classes import CARLA_PALETTE, index_to_palette, palette_to_index
 from compact_perception.geometry import topview_center, topview_index
 
 

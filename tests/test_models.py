@@ -10,7 +10,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from compact_perception.catalog import dataset_ids, model_ids
+from compact_perception.core.catalog import dataset_ids, model_ids
 from compact_perception.models import DATASETS, MODELS, build_model, count_parameters
 from compact_perception.models.polarnet import PolarNet, RingConv2d
 

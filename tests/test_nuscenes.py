@@ -18,8 +18,8 @@ from typing import Iterator
 import numpy as np
 import pytest
 
-from compact_perception.classes import CARLA_NAMES, NUSCENES_NAMES, TAG
-from compact_perception.config import WorldParams, parse_params
+from compact_perception.core.classes import CARLA_NAMES, NUSCENES_NAMES, TAG
+from compact_perception.core.config import WorldParams, parse_params
 from compact_perception.geometry import VIEWS, topview_index
 from compact_perception.nuscenes import LIDAR_CHANNEL, VIEW_CHANNELS
 from compact_perception.nuscenes.classmap import CARLA_TO_NUSCENES, NUSCENES_INDEX, actor_category

@@ -28,7 +28,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from compact_perception.catalog import compact_model_ids, model_ids
+from compact_perception.core.catalog import compact_model_ids, model_ids
 
 COMPACT_MODEL_IDS = compact_model_ids()
 

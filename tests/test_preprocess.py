@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import torch
 
-from compact_perception.cache import CacheError, read_cache, write_cache
-from compact_perception.classes import BEV_NAMES, CARLA_NAMES, CARLA_PALETTE, palette_to_index
-from compact_perception.config import parse_params
+from compact_perception.core.cache import CacheError, read_cache, write_cache
+from compact_perception.core.classes import BEV_NAMES, CARLA_NAMES, CARLA_PALETTE, palette_to_index
+from compact_perception.core.config import parse_params
 from compact_perception.data import make_loader, to_device
 from compact_perception.dvs import dvs_colour_to_image, events_to_image
 from compact_perception.lidar import height_channel, ls_ground_truth, topview_15l, topview_1l
@@ -246,7 +246,7 @@ def test_bad_record_names_frame_and_file(raw: Path, tmp_path: Path, damage: str)
             del rec["lidar_tag"]
         else:
             rec["sem_f"] = rec["sem_f"][:8]
-        from compact_perception.io import write_npz
+        from compact_perception.core.io import write_npz
 
         write_npz(path, rec)
     out = tmp_path / "cache" / "A"

@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from compact_perception import catalog
-from compact_perception.config import DatasetsParams, load_params
+from compact_perception.core import catalog
+from compact_perception.core.config import DatasetsParams, load_params
 from compact_perception.weighting import WEIGHTINGS, weighting_class
 
 from imports import module_file

@@ -16,10 +16,10 @@ from pathlib import Path
 import pytest
 import yaml
 
-from compact_perception import provenance
-from compact_perception.config import parse_params
+from compact_perception.training import provenance
+from compact_perception.core.config import parse_params
 from compact_perception.evaluate import evaluate_run
-from compact_perception.train import train_run
+from compact_perception.training.train import train_run
 
 from synthetic import make_cache
 
@@ -110,7 +110,7 @@ def test_a_finished_run_of_other_code_is_retrained(tmp_path, params_dict, cache,
     again = train_run(params, "A", MODEL, 0, cache, tmp_path / "run")
     assert again == first  # same code, params and data: the finished run stands
     monkeypatch.setattr(provenance, "source_fingerprint", lambda: "other code")
-    monkeypatch.setattr("compact_perception.train.source_fingerprint", lambda: "other code")
+    monkeypatch.setattr("compact_perception.training.train.source_fingerprint", lambda: "other code")
     with caplog.at_level("INFO"):
         rerun = train_run(params, "A", MODEL, 0, cache, tmp_path / "run")
     assert rerun["digest"] != first["digest"]
@@ -119,7 +119,7 @@ def test_a_finished_run_of_other_code_is_retrained(tmp_path, params_dict, cache,
 
 def test_digest_covers_every_result_changing_train_param(params_dict):
     """Every train param but the worker count and device moves the digest."""
-    from compact_perception.train import run_digest
+    from compact_perception.training.train import run_digest
 
     base = parse_params(params_dict)
     d0 = run_digest(base, "A", MODEL, 1, "data", 1)
@@ -146,3 +146,14 @@ def test_compact_run_is_exported_as_onnx_matching_pytorch(reference, tmp_path_fa
     summary = reference[1]
     assert summary["onnx"]["file"] == "model.onnx"
     assert summary["onnx"]["max_abs_diff"] < 1e-4
+
+
+def test_source_fingerprint_covers_the_whole_package_and_the_stage_modules():
+    """The training shortcut's code digest reads every .py of compact_perception (not only its
+    own subpackage) and of pipeline/."""
+    from compact_perception.training.provenance import PACKAGE_ROOT
+
+    repo = Path(__file__).resolve().parents[1]
+    assert PACKAGE_ROOT == repo / "src" / "compact_perception"
+    assert (PACKAGE_ROOT / "metrics.py").is_file() and (PACKAGE_ROOT / "core" / "config.py").is_file()
+    assert (PACKAGE_ROOT.parent.parent / "pipeline" / "train.py").is_file()

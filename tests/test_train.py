@@ -10,9 +10,9 @@ import sys
 import pytest
 import torch
 
-from compact_perception.config import parse_params
-from compact_perception.schedule import EarlyStop, Plateau
-from compact_perception.train import selection_score, train_run
+from compact_perception.core.config import parse_params
+from compact_perception.training.schedule import EarlyStop, Plateau
+from compact_perception.training.train import selection_score, train_run
 
 from synthetic import make_cache
 

@@ -79,8 +79,8 @@ def test_checkpoint_bytes_do_not_depend_on_the_temporary_name(tmp_path):
     """Checkpoints are written under a random temporary name and renamed (nothing half-written);
     torch.save given a path names the archive's root folder after the file, so the bytes must
     be written through an open file to be the same on every run."""
-    from compact_perception import io
-    from compact_perception.train import _save
+    from compact_perception.core import io
+    from compact_perception.training.train import _save
 
     state = {"model": {"w": torch.arange(6.0).reshape(2, 3)}, "epoch": 1}
     written = []

@@ -16,7 +16,7 @@ import torch
 from pydantic import ValidationError
 from torch import nn
 
-from compact_perception.config import GradNormParams, MgnParams
+from compact_perception.core.config import GradNormParams, MgnParams
 from compact_perception.weighting import (
     WEIGHTINGS,
     CAGradParams,

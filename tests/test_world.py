@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from compact_perception.classes import CARLA_NAMES, CARLA_PALETTE, palette_to_index
-from compact_perception.config import ParamsError, parse_params
+from compact_perception.core.classes import CARLA_NAMES, CARLA_PALETTE, palette_to_index
+from compact_perception.core.config import ParamsError, parse_params
 from compact_perception.geometry import VIEWS, topview_center
 from compact_perception.world import camera as cam
 from compact_perception.world import generate as gen

@@ -4,16 +4,22 @@ Multi-sensor Fusion" (IEEE T-ITS).
 
 Package map (one concern per module):
 
-- ``config``       typed schema of params.yaml (unknown keys and wrong types are errors)
-- ``classes``      the 23 CARLA tags, the 9 BEV classes, the 32 nuScenes-lidarseg classes
+- ``core``         what every stage shares: the params schema (``config``), the registries of
+                   datasets, models and tasks (``catalog``), class tables, the dataset cache,
+                   file layout, atomic I/O, errors and the determinism pins (see its docstring)
 - ``geometry``     frame conventions and the top-view grid of eq. (2)-(3)
-- ``io``           atomic, deterministic file writing
 - ``world``        the embedded procedural driving world (datasets A, B, C)
-- ``dvs``/``lidar`` the paper's preprocessing, eq. (1) and eq. (2)-(5)
-- ``cache``/``data`` the compact memory-mapped cache and the PyTorch loader
+- ``nuscenes``     the nuScenes-format export of the world and the nuScenes-lidarseg ingest
+- ``authors``      reading the authors' released CARLA dataset
+- ``dvs``/``lidar``/``preprocess`` the paper's preprocessing, eq. (1) and eq. (2)-(5)
+- ``data``         the PyTorch loader over the cache
 - ``models``       the compact model and the baselines, ``build_model(model_id, dataset_id)``
 - ``losses``/``metrics`` section III-B
-- ``weighting``    static weights, MGN (Algorithm 1), original GradNorm
+- ``weighting``    loss weighting: static, MGN (Algorithm 1), GradNorm, UW, DWA, PCGrad, CAGrad
+- ``training``     the training run (section IV-D): loop, lr schedule, provenance, precision, DDP
+- ``evaluate``/``study`` test scoring, the loss-balancing study
+- ``export``       ONNX export of a trained network and its check against PyTorch
+- ``report``       tables, figures, claims and the index
 """
 
 __version__ = "0.1.0"

@@ -23,7 +23,7 @@ file names (``<id>``, e.g. ``0042.png``: a 4-character extension; ``<stem>`` = t
 without it), which the authors' loader appends to each modality folder. An empty list, a
 list that is not a list of such names, a missing ``data_info.yml``, two splits sharing a
 frame folder and a frame, or any missing or malformed frame file is a
-:class:`~compact_perception.errors.RecordError` whose one-line message names the file;
+:class:`~compact_perception.core.errors.RecordError` whose one-line message names the file;
 there is no "every frame in the folder" fall-back.
 
 Per frame ``<id>`` of a frame folder (the release is 128 x 128 px)::
@@ -79,9 +79,9 @@ import numpy as np
 import yaml
 from tqdm import tqdm
 
-from .cache import write_cache
+from .core.cache import write_cache
 from .dvs import dvs_colour_to_image
-from .errors import RecordError
+from .core.errors import RecordError
 from .geometry import VIEWS
 
 log = logging.getLogger(__name__)
@@ -510,7 +510,7 @@ def describe_authors_dataset(root: str | os.PathLike | None, splits: Any, datase
     """The ``generate`` stage for ``source: authors``: nothing is rendered. Checks the whole
     release as :func:`ingest_authors` would, then writes a manifest pointing at ``root`` (split
     files, keys and frame ids) and a Fig. 1-like figure of the first test frame."""
-    from . import io
+    from .core import io
     from .report.qualitative import plot_qualitative
 
     size = _check_size(resolution)

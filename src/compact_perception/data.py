@@ -17,7 +17,7 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset, DistributedSampler, RandomSampler, SequentialSampler
 
-from .cache import CacheError, read_meta, read_split
+from .core.cache import CacheError, read_meta, read_split
 
 log = logging.getLogger(__name__)
 

@@ -24,9 +24,9 @@ import pandas as pd
 import torch
 from tqdm.auto import tqdm
 
-from . import catalog, io
+from .core import catalog, io
 from .data import make_loader, to_device
-from .determinism import resolve_device, set_threads
+from .core.determinism import resolve_device, set_threads
 from .metrics import (DEPTH_METRICS, MV_DEFINITION, class_confusion, class_iou, compute_metrics,
                       depth_errors_per_sample, mean_iou, multilabel_confusion, scores_from_means, total_metric)
 from .models import build_model

@@ -11,7 +11,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from . import io as cio  # noqa: E402
+from .core import io as cio  # noqa: E402
 
 log = logging.getLogger(__name__)
 

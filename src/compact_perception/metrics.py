@@ -40,9 +40,9 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from . import catalog
+from .core import catalog
 from .losses import as_views
-from .registry import Registry
+from .core.registry import Registry
 
 __all__ = [
     "mae",

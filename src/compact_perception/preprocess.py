@@ -33,11 +33,11 @@ import numpy as np
 from tqdm import tqdm
 
 from .authors import ingest_authors
-from .cache import write_cache
-from .classes import CARLA_PALETTE, palette_to_index
-from .config import Params, PreprocessParams
+from .core.cache import write_cache
+from .core.classes import CARLA_PALETTE, palette_to_index
+from .core.config import Params, PreprocessParams
 from .dvs import events_to_image
-from .errors import RecordError  # re-exported: ``from .preprocess import RecordError`` keeps working
+from .core.errors import RecordError  # re-exported: ``from .preprocess import RecordError`` keeps working
 from .lidar import ls_ground_truth, topview_15l
 
 log = logging.getLogger(__name__)
@@ -196,7 +196,7 @@ def preprocess_sim(raw_dir: str | os.PathLike, out_dir: str | os.PathLike, datas
 
 def figure_lidar_of(cache_dir: str | os.PathLike, split: str = "test", index: int = 0) -> np.ndarray:
     """The cached (15, S, S) LiDAR tensor of one frame (for the Fig. 5-like figure)."""
-    from .cache import read_split
+    from .core.cache import read_split
 
     return np.asarray(read_split(cache_dir, split).arrays["lidar"][index], dtype=np.float32)
 

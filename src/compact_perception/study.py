@@ -3,7 +3,7 @@ loss-weighting method, at one seed, on every dataset of ``study.datasets`` (set 
 scale, all four at the paper's), then scored on the test split like any run.
 
 The arms come from params.yaml (``study.arms``: the weighting id and its settings); the recipe is
-``study.base_model``'s with the weighting replaced (:meth:`~compact_perception.config.Params.study_recipe`),
+``study.base_model``'s with the weighting replaced (:meth:`~compact_perception.core.config.Params.study_recipe`),
 so every arm differs from the others in the weighting only. The paper's own forms (static weights,
 MGN as printed, MGN as the authors ran it) are the main runs of compact_15l, compact_15l_mgn and
 compact_15l_mgn_authors, not repeated here.
@@ -13,10 +13,10 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
-from .config import Params
+from .core.config import Params
 from .evaluate import evaluate_run
-from .layout import study_paths
-from .train import train_run
+from .core.layout import study_paths
+from .training.train import train_run
 
 log = logging.getLogger(__name__)
 

@@ -24,7 +24,7 @@ from typing import Any, Callable, Mapping
 import torch
 from torch import Tensor, nn
 
-from .precision import autocast_context, batch_to_channels_last, maybe_compile, to_channels_last
+from .training.precision import autocast_context, batch_to_channels_last, maybe_compile, to_channels_last
 from .report.efficiency import device_name, measure_fps, synchronize
 
 log = logging.getLogger(__name__)

@@ -8,14 +8,14 @@ the network, only the training differs), and the section V-D baselines `gradnorm
 
 Each network module registers its own factory (``@register_network("<id>")``, :mod:`.base`);
 this package imports every module in it, so a new network is one new file, plus its model's
-entry in ``catalog.py`` and its recipe and id in params.yaml.
+entry in ``core/catalog.py`` and its recipe and id in params.yaml.
 """
 from __future__ import annotations
 
 from torch import nn
 
-from .. import catalog
-from ..registry import import_submodules
+from ..core import catalog
+from ..core.registry import import_submodules
 from .base import DATASETS, NETWORKS, DatasetSpec, register_network
 from .blocks import count_parameters
 

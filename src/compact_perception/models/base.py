@@ -11,9 +11,9 @@ from typing import Callable
 
 from torch import nn
 
-from .. import catalog
-from ..classes import BEV_NAMES, CARLA_NAMES, NUSCENES_NAMES
-from ..registry import Registry
+from ..core import catalog
+from ..core.classes import BEV_NAMES, CARLA_NAMES, NUSCENES_NAMES
+from ..core.registry import Registry
 
 __all__ = ["DatasetSpec", "DATASETS", "NETWORKS", "NetworkFactory", "register_network"]
 

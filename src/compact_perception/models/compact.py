@@ -38,7 +38,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
-from ..catalog import ModelInfo
+from ..core.catalog import ModelInfo
 from .base import DatasetSpec, register_network
 from .blocks import ConvBlock, down, kaiming_init_, losses_module, up
 

@@ -21,7 +21,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from ..catalog import ModelInfo
+from ..core.catalog import ModelInfo
 from .base import DatasetSpec, register_network
 from .blocks import log_probs, losses_module
 

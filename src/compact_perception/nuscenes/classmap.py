@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from compact_perception.classes import CARLA_NAMES, NUSCENES_NAMES, TAG
+from compact_perception.core.classes import CARLA_NAMES, NUSCENES_NAMES, TAG
 
 NUSCENES_INDEX: dict[str, int] = {n: i for i, n in enumerate(NUSCENES_NAMES)}
 

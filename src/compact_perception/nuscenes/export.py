@@ -60,10 +60,10 @@ import numpy as np
 from PIL import Image
 from tqdm import tqdm
 
-from compact_perception.classes import NUSCENES_NAMES, TAG
-from compact_perception.config import TOWNS, CameraParams, LidarParams, Params, WorldParams
+from compact_perception.core.classes import NUSCENES_NAMES, TAG
+from compact_perception.core.config import TOWNS, CameraParams, LidarParams, Params, WorldParams
 from compact_perception.geometry import VIEWS, topview_cell_centres
-from compact_perception.io import atomic_dir, write_bytes
+from compact_perception.core.io import atomic_dir, write_bytes
 from compact_perception.nuscenes import LIDAR_CHANNEL, VIEW_CHANNELS
 from compact_perception.nuscenes.classmap import actor_category, map_carla_tags, refine_point_labels
 from compact_perception.nuscenes.projection import matrix_to_quat, yaw_quat

@@ -62,9 +62,9 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from compact_perception.classes import NUSCENES_NAMES
-from compact_perception.config import Params, PreprocessParams
-from compact_perception.cache import write_cache
+from compact_perception.core.classes import NUSCENES_NAMES
+from compact_perception.core.config import Params, PreprocessParams
+from compact_perception.core.cache import write_cache
 from compact_perception.geometry import VIEWS, topview_cell_centres, topview_index
 from compact_perception.lidar import ls_ground_truth, topview_15l
 from compact_perception.nuscenes import (
@@ -368,7 +368,7 @@ def ingest_nuscenes(
 
     All inputs are checked before anything is written. ``source`` defaults to
     ``"simulated nuScenes-format"`` when the dataroot carries ``sim_export.json`` and
-    ``"nuscenes-lidarseg"`` otherwise. ``writer`` defaults to ``compact_perception.cache.write_cache``.
+    ``"nuscenes-lidarseg"`` otherwise. ``writer`` defaults to ``compact_perception.core.cache.write_cache``.
     """
     dataroot, out_dir = Path(dataroot), Path(out_dir)
     nusc = load_nuscenes(dataroot, version)

@@ -31,7 +31,7 @@ from typing import Any, Mapping, Optional, Sequence
 import numpy as np
 import pandas as pd
 
-from .. import catalog, io
+from ..core import catalog, io
 from ..stats import (MIN_SEEDS, N_BOOT, BootstrapResult, bootstrap_contrast, paired_bootstrap, seed_bootstrap,
                      stat_mean, stat_mv, stat_tm, verdict)
 from .collect import (TASK_METRICS, ReportInputError, SeedSpec, align, list_runs, load_row_frames, read_summary,

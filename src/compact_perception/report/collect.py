@@ -16,7 +16,7 @@ Inputs (ARCHITECTURE.md / SPEC 2), per run (one training seed ``k`` of a (datase
 - ``data/cache/<ds>/meta.json`` (frame counts, resolution, source).
 
 Runs: :func:`list_runs` is the one place of the report that knows where the runs (seeds) of a
-(dataset, model) live (the paths themselves come from :func:`compact_perception.layout.run_paths`).
+(dataset, model) live (the paths themselves come from :func:`compact_perception.core.layout.run_paths`).
 Given the seed list of params.yaml (``seeds`` for the compact models, ``baseline_seeds`` for the
 baselines) it lists exactly those seeds' runs that exist: a stale ``seed<k>`` folder of a seed no
 longer in the list is ignored. Without a seed list (``None``) it lists every ``seed<k>`` folder,
@@ -41,7 +41,7 @@ from typing import Any, Mapping, Optional, Sequence
 import numpy as np
 import pandas as pd
 
-from ..layout import run_paths
+from ..core.layout import run_paths
 from ..metrics import scores_from_means
 
 log = logging.getLogger(__name__)

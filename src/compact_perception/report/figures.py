@@ -25,7 +25,7 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 from matplotlib.ticker import MaxNLocator  # noqa: E402
 
-from .. import catalog  # noqa: E402
+from ..core import catalog  # noqa: E402
 from .collect import read_summary, read_tsv_metric  # noqa: E402
 from .qualitative import plot_qualitative, save_figure  # noqa: E402,F401  (plot_qualitative: re-export)
 

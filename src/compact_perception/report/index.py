@@ -26,8 +26,8 @@ import tempfile
 from pathlib import Path
 from typing import Any, Optional, Sequence
 
-from .. import io
-from ..catalog import dataset_ids, model_ids
+from ..core import io
+from ..core.catalog import dataset_ids, model_ids
 from .claims import build_claims, claims_csv, claims_markdown, verdict_counts
 from .collect import (DatasetScale, ModelResult, SeedSpec, collect_scale, list_runs, load_npz, load_results,
                       load_row_frames, read_json, seeds_for)

@@ -22,7 +22,7 @@ import logging
 from pathlib import Path
 from typing import Sequence
 
-from .. import io
+from ..core import io
 from .collect import SeedSpec, list_runs, run_name, seeds_for
 from .figures import read_val_curve, read_weight_curves
 

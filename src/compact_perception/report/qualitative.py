@@ -20,8 +20,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from .. import io  # noqa: E402
-from ..classes import BEV_PALETTE, CARLA_PALETTE  # noqa: E402
+from ..core import io  # noqa: E402
+from ..core.classes import BEV_PALETTE, CARLA_PALETTE  # noqa: E402
 
 log = logging.getLogger(__name__)
 

@@ -7,7 +7,7 @@ Methods, per dataset of ``study.datasets`` (at ``scale``), in this order:
   static weights), ``compact_15l_mgn`` (MGN, Algorithm 1), ``compact_15l_mgn_authors`` (MGN as
   the authors' code runs it), read through :func:`.collect.list_runs`;
 - every study arm in ``study.arm_ids`` order (``runs/study/<arm>/seed<k>/<ds>/``,
-  ``results/study/<arm>/seed<k>/<ds>/metrics.json``; :func:`compact_perception.layout.study_paths`),
+  ``results/study/<arm>/seed<k>/<ds>/metrics.json``; :func:`compact_perception.core.layout.study_paths`),
   the single-task arms (weighting ``single``) included: they are Δm's reference.
 
 Per run (one training seed of params ``seeds``): the four task metrics (test-set means), TM and MV
@@ -33,8 +33,8 @@ import pandas as pd  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.ticker import MaxNLocator  # noqa: E402
 
-from .. import catalog, io  # noqa: E402
-from ..layout import study_paths  # noqa: E402
+from ..core import catalog, io  # noqa: E402
+from ..core.layout import study_paths  # noqa: E402
 from ..weighting import weighting_class  # noqa: E402
 from .collect import Cell, aggregate_cells, list_runs, read_metrics, read_summary, with_derived  # noqa: E402
 from .figures import _mean_curve, read_weight_curves, save_figure  # noqa: E402

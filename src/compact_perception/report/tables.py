@@ -43,7 +43,7 @@ from typing import Any, Iterable, Optional, Sequence
 import numpy as np
 import pandas as pd
 
-from .. import catalog, io
+from ..core import catalog, io
 from ..metrics import DEPTH_METRICS, scores_from_means
 from ..stats import REPRODUCED, BootstrapResult, paired_bootstrap, stat_mean, stat_mv, stat_tm, verdict
 from .collect import (COMBINATION_SOURCE, Cell, DatasetScale, ModelResult, ReportInputError, aggregate_cells, align,

@@ -66,8 +66,8 @@ from typing import Any, Sequence
 
 from torch import nn
 
-from ..config import ModelRecipe
-from ..registry import import_submodules
+from ..core.config import ModelRecipe
+from ..core.registry import import_submodules
 from .base import WEIGHTINGS, LossWeighting, register, shared_weights
 
 # Every module of this package registers its classes (``@register("id")``) on import; importing

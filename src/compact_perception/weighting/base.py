@@ -6,8 +6,8 @@ from typing import Any, Callable, ClassVar, Mapping, Sequence
 import torch
 from torch import Tensor, nn
 
-from ..config import Strict
-from ..registry import Registry
+from ..core.config import Strict
+from ..core.registry import Registry
 
 __all__ = ["LossWeighting", "WEIGHTINGS", "register", "recipe_params", "shared_weights"]
 
@@ -21,7 +21,7 @@ class LossWeighting:
     ``grad_scale``: the loss scale of the trainer's float16 ``GradScaler`` (the trainer sets it
     before every :meth:`before_backward`; 1.0 = no scaling, the default). Weightings that take
     gradients of the losses themselves (GradNorm, MGN) scale by it and unscale their result,
-    so float16 gradients do not underflow (:mod:`compact_perception.precision`).
+    so float16 gradients do not underflow (:mod:`compact_perception.training.precision`).
 
     Every concrete class declares ``label`` (its name in the report) and ``params_model`` (the
     pydantic schema of its recipe section, named like its registry id; ``None`` when it has no

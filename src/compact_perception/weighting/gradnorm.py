@@ -6,7 +6,7 @@ from typing import Any, Literal, Mapping, Sequence
 import torch
 from torch import Tensor, nn
 
-from ..config import GradNormParams, ModelRecipe
+from ..core.config import GradNormParams, ModelRecipe
 from .base import register
 from .mgn import GradNormCore
 

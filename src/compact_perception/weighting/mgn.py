@@ -10,8 +10,8 @@ from typing import Any, Mapping, Sequence
 import torch
 from torch import Tensor, nn
 
-from ..config import MgnParams, ModelRecipe
-from ..schedule import PlateauRule, plateau_due
+from ..core.config import MgnParams, ModelRecipe
+from ..training.schedule import PlateauRule, plateau_due
 from .base import LossWeighting, register, shared_weights
 
 __all__ = ["GradNormCore", "MGNWeighting", "full_precision"]
@@ -160,7 +160,7 @@ class GradNormCore(LossWeighting):
     def on_epoch_end(self, improved: bool) -> None:
         """Plateau halving of the weight lr, "like the main lr" (SPEC 7): ``improved`` is the
         trainer's plateau verdict for this epoch; once ``plateau_rule`` calls for a reduction
-        (:func:`~compact_perception.schedule.plateau_due`: ``plateau_patience`` epochs without a
+        (:func:`~compact_perception.training.schedule.plateau_due`: ``plateau_patience`` epochs without a
         drop, or more than that for the 'torch' rule), ``lr <- max(lr * factor, lr_min)`` and the
         count restarts."""
         if improved:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Sequence
 
-from ..config import Strict
+from ..core.config import Strict
 from .base import LossWeighting, register
 
 __all__ = ["SingleTaskParams", "SingleTaskWeighting"]

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..classes import TAG
+from ..core.classes import TAG
 from .town import Town
 
 EGO_SIZE = (4.6, 1.9, 1.5)  # length, width, height

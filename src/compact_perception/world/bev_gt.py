@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..classes import BEV_NAMES, TAG
+from ..core.classes import BEV_NAMES, TAG
 from ..geometry import topview_cell_centres
 from .actors import EGO_SIZE, ActorState
 from .town import MARK_CENTRE, MARK_LANE, MARK_ROAD, Town

@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..classes import CARLA_PALETTE, TAG
-from ..config import CameraParams
+from ..core.classes import CARLA_PALETTE, TAG
+from ..core.config import CameraParams
 from ..geometry import VIEW_YAW_DEG
 from .conditions import TIMES, Condition, sun_vector
 from .raycast import Hits

@@ -5,8 +5,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import io
-from ..classes import BEV_PALETTE, CARLA_PALETTE
+from ..core import io
+from ..core.classes import BEV_PALETTE, CARLA_PALETTE
 from ..geometry import VIEWS, topview_index
 
 

@@ -19,9 +19,9 @@ from typing import Any, Iterator
 import numpy as np
 from tqdm import tqdm
 
-from .. import io
-from ..classes import BEV_NAMES, CARLA_NAMES, CARLA_PALETTE, TAG, palette_to_index
-from ..config import TOWNS, Params, ParamsError, WorldParams
+from ..core import io
+from ..core.classes import BEV_NAMES, CARLA_NAMES, CARLA_PALETTE, TAG, palette_to_index
+from ..core.config import TOWNS, Params, ParamsError, WorldParams
 from ..geometry import VIEWS
 from . import camera as cam
 from .actors import Episode, boxes_to_aabb

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..classes import TAG
+from ..core.classes import TAG
 from .town import Town
 
 SECTOR_RAD = np.deg2rad(4.0)

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..classes import CARLA_PALETTE, TAG
+from ..core.classes import CARLA_PALETTE, TAG
 
 #: marking map values (``Town.marking``) used for the BEV lane / centreline masks
 MARK_LANE, MARK_CENTRE, MARK_ROAD = 1, 2, 4  # bit 4: drivable road surface (BEV 'road')

@@ -11,7 +11,7 @@ of a split carries (e.g. no ``dvs`` for nuScenes, 32-class maps) define the arra
 that split, and every later frame must carry the same keys with the same dtype and
 shape (else a ValueError naming the frame). Frames stream to disk one at a time (memory
 stays O(one frame)) into .npy files whose fixed-size header is rewritten with the final
-count at the end; everything is built inside :func:`compact_perception.io.atomic_dir`,
+count at the end; everything is built inside :func:`compact_perception.core.io.atomic_dir`,
 so an error or an interruption leaves no cache directory behind.
 
 A frame dict holds numpy arrays plus an optional ``"frame_id"`` (str); frames without

@@ -32,20 +32,20 @@ import torch
 from tqdm.auto import tqdm
 
 from . import distributed as ddp
-from . import io
-from . import catalog
-from .config import ModelRecipe, Params
-from .determinism import release_torch_pins, resolve_device, set_threads
-from .errors import RunError
-from .data import make_loader, set_epoch, to_device
-from .losses import de_loss_factor, scale_de_loss
-from .metrics import compute_metrics, scores_from_means, total_metric_partial
-from .models import build_model
+from ..core import io
+from ..core import catalog
+from ..core.config import ModelRecipe, Params
+from ..core.determinism import release_torch_pins, resolve_device, set_threads
+from ..core.errors import RunError
+from ..data import make_loader, set_epoch, to_device
+from ..losses import de_loss_factor, scale_de_loss
+from ..metrics import compute_metrics, scores_from_means, total_metric_partial
+from ..models import build_model
 from .precision import (autocast_context, batch_to_channels_last, float_outputs, make_grad_scaler, maybe_compile,
                         resolve_precision, to_channels_last)
 from .provenance import source_fingerprint
 from .schedule import EarlyStop, Plateau
-from .weighting import build_weighting
+from ..weighting import build_weighting
 
 log = logging.getLogger(__name__)
 
@@ -98,7 +98,7 @@ def run_digest(params: Params, dataset_id: str, model_id: str, seed: int, cache_
                world_size: int, recipe: ModelRecipe | None = None) -> str:
     """Digest of everything that decides a run's result; it gates resuming and skipping.
 
-    It covers the source code (:func:`~compact_perception.provenance.source_fingerprint`),
+    It covers the source code (:func:`~compact_perception.training.provenance.source_fingerprint`),
     the torch version, ``scale``, the run's seed, every ``train`` param except the other
     models' recipes and the settings that cannot change a result (``num_workers``,
     ``device``), the training and validation data, and the number of processes.
@@ -208,7 +208,7 @@ def _export_best(model: torch.nn.Module, best_path: Path, onnx_path: Path, loade
                  spec: dict) -> dict:
     """Write the best checkpoint's network as ONNX (issue 15) and check it against PyTorch on one
     validation frame; returns the largest absolute output difference."""
-    from .export import export_onnx
+    from ..export import export_onnx
 
     model.load_state_dict(torch.load(best_path, map_location=device, weights_only=False)["model"])
     batch = to_device(next(iter(loader)), device, spec["num_seg_classes"])
@@ -222,8 +222,8 @@ def _check_inputs(params: Params, model_id: str, recipe: ModelRecipe, where: str
                   per_rank_batch: int) -> dict:
     """Everything a run needs, checked before anything is written; returns the cache meta.
     ``where``: the params key of ``recipe`` (for the messages)."""
-    from .cache import CacheError, read_meta, read_split
-    from .weighting import WEIGHTINGS
+    from ..core.cache import CacheError, read_meta, read_split
+    from ..weighting import WEIGHTINGS
 
     compact = catalog.MODELS[model_id].group == "compact"
     if compact and recipe.de_loss is None:

@@ -11,7 +11,8 @@ import functools
 import hashlib
 from pathlib import Path
 
-PACKAGE_ROOT = Path(__file__).resolve().parent
+#: the whole ``compact_perception`` package (this module sits in its ``training`` subpackage)
+PACKAGE_ROOT = Path(__file__).resolve().parents[1]
 
 
 @functools.lru_cache(maxsize=1)

@@ -25,7 +25,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 T = TypeVar("T")
 
 TOWNS = ("town01", "town02", "town03", "town04", "town05")
-# Model and dataset ids live in the registries (compact_perception.catalog), which this module does
+# Model and dataset ids live in the registries (compact_perception.core.catalog), which this module does
 # not import: the data stages read params too, and a new model must not rerun them.
 ScaleName = Literal["default", "paper"]
 
