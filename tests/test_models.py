@@ -110,6 +110,44 @@ def test_chen_count_independent_of_resolution() -> None:
     assert count_parameters(model) == 10_928_101
 
 
+# ---------------------------------------------------------------- single-task networks
+# Per-module counts of the 15L network on A (the compact.py arithmetic, block(i, o) = 9io + 9o^2 + 6o):
+# the encoders 178,368 (RGB) + 177,792 (DVS) + 74,256 (LiDAR, 15 channels) + bottleneck 1 369,408 = 799,824.
+@pytest.mark.parametrize("tasks,expected", [
+    (("de",), 799_824 + 296_516),
+    (("ss",), 799_824 + 298_012),
+    (("ls",), 799_824 + 157_735),
+    (("bevp",), 2_521_504),          # BEVP's second stage reads the DE, SS and LS outputs: the whole network
+])
+def test_single_task_compact_network_counts(tasks: tuple[str, ...], expected: int) -> None:
+    model = build_model("compact_15l", "A", tasks)
+    assert model.tasks == tasks
+    assert count_parameters(model) == expected
+
+
+@pytest.mark.parametrize("task", ["de", "ss", "ls"])
+def test_single_task_network_is_the_full_networks_branch(task: str) -> None:
+    """Given the full network's weights, the one-task network computes exactly that task's output."""
+    full = _model("compact_15l", "A").eval()
+    one = build_model("compact_15l", "A", (task,)).eval()
+    missing, unexpected = one.load_state_dict(full.state_dict(), strict=False)
+    assert not missing and unexpected  # every weight of the branch comes from the full net; the rest is absent
+    batch = make_batch("A", 15)
+    with torch.no_grad():
+        out = one(batch)
+        assert set(out) == {task} and set(one.compute_losses(out, batch)) == {task}
+        assert torch.equal(out[task], full(batch)[task])
+    assert set(one.shared_layers()) == {task}
+
+
+def test_only_the_compact_network_has_task_subsets() -> None:
+    assert build_model("polarnet", "A", ("ls",)).tasks == ("ls",)  # its own tasks: the plain build
+    with pytest.raises(ValueError, match="gradnorm_segnet is built for all of its tasks"):
+        build_model("gradnorm_segnet", "A", ("de",))
+    with pytest.raises(ValueError, match="non-empty subset"):
+        build_model("compact_15l", "A", ("depth",))
+
+
 # ---------------------------------------------------------------- forward contract
 @pytest.mark.parametrize("dataset_id", DATASET_IDS)
 @pytest.mark.parametrize("model_id", model_ids())

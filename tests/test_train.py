@@ -157,3 +157,26 @@ def test_two_process_gloo_matches_one_process(tmp_path, params_dict, root):
     # MGN weights are averaged across ranks after every update: one set, summing to T = 4
     assert sum(two["final_weights"].values()) == pytest.approx(4.0)
     assert two["final_weights"] == pytest.approx(one["final_weights"], rel=0.05)
+
+
+def test_single_task_arm_trains_and_scores_a_one_task_network(tmp_path, params_dict):
+    """A study arm with ``single`` weighting trains the network built for its task alone (the
+    checkpoint says which), and the test scores are that task's only."""
+    from compact_perception.evaluate import evaluate_run
+    from compact_perception.weighting import network_tasks
+
+    params = tiny_params(params_dict, epochs=1)
+    recipe = params.study_recipe("single_ls")
+    assert network_tasks(recipe, ("de", "ss", "ls", "bevp")) == ("ls",)
+    assert network_tasks(params.study_recipe("uw"), ("de", "ss", "ls", "bevp")) == ("de", "ss", "ls", "bevp")
+    cache = make_cache(tmp_path / "cache")
+    run = tmp_path / "run"
+    summary = train_run(params, "A", "compact_15l", 0, cache, run, recipe=recipe, recipe_key="study.arms.single_ls",
+                        export_onnx=False)
+    best = torch.load(run / "best.pt", weights_only=False)
+    assert best["tasks"] == ["ls"] and not any(k.startswith(("dec_de", "dec_bevp", "enc_ss")) for k in best["model"])
+    assert summary["final_weights"] == {"w_ls": 1.0}
+    assert not (run / "model.onnx").exists()
+    result = evaluate_run("A", "compact_15l", cache, run, tmp_path / "metrics.json", tmp_path / "eval",
+                          device_pref="cpu", save_predictions=1, num_threads=1)
+    assert "iou_ls" in result and not {"mae_de", "iou_ss", "iou_bevp", "tm"} & set(result)

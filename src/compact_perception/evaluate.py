@@ -154,7 +154,7 @@ def evaluate_run(dataset_id: str, model_id: str, cache_dir: Path, run_dir: Path,
     meta = json.loads((cache_dir / "meta.json").read_text())
     n_cls = len(meta["seg_classes"])
     checkpoint = torch.load(best, map_location="cpu", weights_only=False)
-    model = build_model(model_id, dataset_id)
+    model = build_model(model_id, dataset_id, checkpoint.get("tasks"))  # the tasks it was trained for
     model.load_state_dict(checkpoint["model"])
     model.to(device).eval()
     loader = make_loader(cache_dir, "test", getattr(model, "lidar_channels", 15), 1, shuffle=False, seed=0,

@@ -12,6 +12,9 @@ entry in ``core/catalog.py`` and its recipe and id in params.yaml.
 """
 from __future__ import annotations
 
+import inspect
+from typing import Sequence
+
 from torch import nn
 
 from ..core import catalog
@@ -30,10 +33,19 @@ from .segnet import GradNormSegNet  # noqa: E402
 MODELS = catalog.MODELS
 
 
-def build_model(model_id: str, dataset_id: str) -> nn.Module:
-    """A fresh model for `dataset_id`; unknown ids raise KeyError listing the known ones."""
+def build_model(model_id: str, dataset_id: str, tasks: Sequence[str] | None = None) -> nn.Module:
+    """A fresh model for `dataset_id`; unknown ids raise KeyError listing the known ones.
+
+    ``tasks`` (default: the model's own, ``catalog``) builds the network for a subset of its
+    tasks, where its factory takes a ``tasks`` argument (the compact network: the study's
+    single-task references); any other network raises ValueError."""
     info = MODELS[model_id]
-    return NETWORKS[info.network](DATASETS[dataset_id], info)
+    factory = NETWORKS[info.network]
+    if tasks is None or tuple(tasks) == tuple(info.tasks):
+        return factory(DATASETS[dataset_id], info)
+    if "tasks" not in inspect.signature(factory).parameters:
+        raise ValueError(f"model {model_id} is built for all of its tasks {list(info.tasks)}, not {list(tasks)}")
+    return factory(DATASETS[dataset_id], info, tasks=tuple(tasks))
 
 
 def lidar_channels(model_id: str) -> int:

@@ -18,7 +18,7 @@ bottlenecks run at S/8; every "block" is a `ConvBlock` = 2 x (3x3 conv + bias, B
 * BEVP decoder: `MultiViewDecoder` with one view, skips from the LS second encoder, sigmoid
   head 16 -> Cb.
 
-Arithmetic (block(i, o) = 9io + 9o^2 + 8o, head(i, o) = io + o), simulated 1L (C = 23, Cb = 9):
+Arithmetic (block(i, o) = 9io + 9o^2 + 6o, head(i, o) = io + o), simulated 1L (C = 23, Cb = 9):
 enc_rgb 178,368 + enc_dvs 177,792 + enc_lidar 72,240 + bottleneck1 369,408 + dec_de 296,516 +
 dec_ss 298,012 + dec_ls 157,735 + enc_de 177,216 + enc_ss 189,888 + enc_ls 75,408 +
 bottleneck2 369,408 + dec_bevp 157,497 = 2,519,488.  15L adds 14*16*9 = 2,016 (first LiDAR
@@ -34,6 +34,8 @@ a 1-layer model given the 15-channel tensor reads channel 14 (the flattened imag
 S must be divisible by 8 (16 in the pipeline).
 """
 from __future__ import annotations
+
+from typing import Sequence
 
 import torch
 from torch import Tensor, nn
@@ -97,8 +99,17 @@ class CompactPerception(nn.Module):
         has_dvs: bool = True,
         n_views: int = 4,
         dropout: float = 0.5,
+        tasks: Sequence[str] = ("de", "ss", "ls", "bevp"),
     ) -> None:
+        """``tasks`` (default all four) builds a single- or few-task network of the same layout
+        (the study's single-task references): the decoders of the tasks asked for, and for BEVP
+        the whole second stage, which reads the DE, SS and LS outputs."""
         super().__init__()
+        unknown = [t for t in tasks if t not in type(self).tasks]
+        if unknown or not tasks:
+            raise ValueError(f"tasks {list(tasks)}: expected a non-empty subset of {list(type(self).tasks)}")
+        self.tasks = tuple(t for t in type(self).tasks if t in tasks)  # canonical order
+        first_stage = set(self.tasks) | ({"de", "ss", "ls"} if "bevp" in self.tasks else set())
         self.n_seg, self.n_bev, self.n_views = n_seg, n_bev, n_views
         self.lidar_channels, self.has_dvs = lidar_channels, has_dvs
         self.enc_rgb = MultiViewEncoder(3, n_views, dropout)
@@ -106,14 +117,16 @@ class CompactPerception(nn.Module):
         self.enc_lidar = MultiViewEncoder(lidar_channels, 1, dropout)
         n_mod = 3 if has_dvs else 2
         self.bottleneck1 = ConvBlock(n_mod * CH[2], CH[3], dropout=dropout)
-        self.dec_de = MultiViewDecoder(1, n_views, dropout)
-        self.dec_ss = MultiViewDecoder(n_seg, n_views, dropout)
-        self.dec_ls = MultiViewDecoder(n_seg, 1, dropout)
-        self.enc_de = MultiViewEncoder(1, n_views, dropout)
-        self.enc_ss = MultiViewEncoder(n_seg, n_views, dropout)
-        self.enc_ls = MultiViewEncoder(n_seg, 1, dropout)
-        self.bottleneck2 = ConvBlock(3 * CH[2], CH[3], dropout=dropout)
-        self.dec_bevp = MultiViewDecoder(n_bev, 1, dropout)
+        self.dec_de = MultiViewDecoder(1, n_views, dropout) if "de" in first_stage else None
+        self.dec_ss = MultiViewDecoder(n_seg, n_views, dropout) if "ss" in first_stage else None
+        self.dec_ls = MultiViewDecoder(n_seg, 1, dropout) if "ls" in first_stage else None
+        self.enc_de = self.enc_ss = self.enc_ls = self.bottleneck2 = self.dec_bevp = None
+        if "bevp" in self.tasks:
+            self.enc_de = MultiViewEncoder(1, n_views, dropout)
+            self.enc_ss = MultiViewEncoder(n_seg, n_views, dropout)
+            self.enc_ls = MultiViewEncoder(n_seg, 1, dropout)
+            self.bottleneck2 = ConvBlock(3 * CH[2], CH[3], dropout=dropout)
+            self.dec_bevp = MultiViewDecoder(n_bev, 1, dropout)
         kaiming_init_(self)
 
     def _lidar(self, lidar: Tensor) -> Tensor:
@@ -135,34 +148,42 @@ class CompactPerception(nn.Module):
             d0, d1 = r0, r1  # nuScenes: DE decoders take the RGB skips (section IV-B)
         feats.append(lz)
         z1 = self.bottleneck1(torch.cat(feats, dim=1))
-        de = torch.relu(self.dec_de(z1, d0, d1))
-        ss = torch.sigmoid(self.dec_ss(z1, r0, r1))
-        ls = torch.sigmoid(self.dec_ls(z1, l0, l1))  # (B,1,C,S,S)
-        _, _, ez = self.enc_de(de)
-        _, _, sz = self.enc_ss(ss)
-        t0, t1, tz = self.enc_ls(ls)
-        z2 = self.bottleneck2(torch.cat([ez, sz, tz], dim=1))
-        bevp = torch.sigmoid(self.dec_bevp(z2, t0, t1))
-        return {"de": de, "ss": ss, "ls": ls[:, 0], "bevp": bevp[:, 0]}
+        out: dict[str, Tensor] = {}
+        if self.dec_de is not None:
+            out["de"] = torch.relu(self.dec_de(z1, d0, d1))
+        if self.dec_ss is not None:
+            out["ss"] = torch.sigmoid(self.dec_ss(z1, r0, r1))
+        if self.dec_ls is not None:
+            ls = torch.sigmoid(self.dec_ls(z1, l0, l1))  # (B,1,C,S,S)
+            out["ls"] = ls[:, 0]
+        if self.dec_bevp is not None:
+            _, _, ez = self.enc_de(out["de"])
+            _, _, sz = self.enc_ss(out["ss"])
+            t0, t1, tz = self.enc_ls(ls)
+            z2 = self.bottleneck2(torch.cat([ez, sz, tz], dim=1))
+            out["bevp"] = torch.sigmoid(self.dec_bevp(z2, t0, t1))[:, 0]
+        return {t: out[t] for t in self.tasks}
 
     def compute_losses(self, outputs: dict[str, Tensor], batch: dict[str, Tensor]) -> dict[str, Tensor]:
         """Section III-B: Huber (delta 0.5, eq. 1-2) for DE, BCE + Dice (eq. 3) for SS/LS/BEVP."""
         L = losses_module()
-        return {
-            "de": L.huber_loss(outputs["de"], batch["de"], delta=0.5),
-            "ss": L.bce_dice_loss(outputs["ss"], batch["ss"]),
-            "ls": L.bce_dice_loss(outputs["ls"], batch["ls"]),
-            "bevp": L.bce_dice_loss(outputs["bevp"], batch["bevp"]),
+        loss = {
+            "de": lambda: L.huber_loss(outputs["de"], batch["de"], delta=0.5),
+            "ss": lambda: L.bce_dice_loss(outputs["ss"], batch["ss"]),
+            "ls": lambda: L.bce_dice_loss(outputs["ls"], batch["ls"]),
+            "bevp": lambda: L.bce_dice_loss(outputs["bevp"], batch["bevp"]),
         }
+        return {t: loss[t]() for t in self.tasks}
 
     def shared_layers(self) -> dict[str, list[str]]:
         """MGN's W(s) (eq. 6): first conv of bottleneck 1 (DE/SS/LS) and of bottleneck 2 (BEVP)."""
         w1, w2 = ["bottleneck1.conv1"], ["bottleneck2.conv1"]
-        return {"de": list(w1), "ss": list(w1), "ls": list(w1), "bevp": w2}
+        return {t: list(w2 if t == "bevp" else w1) for t in self.tasks}
 
 
 @register_network("compact")
-def _build(ds: DatasetSpec, info: ModelInfo) -> nn.Module:
-    """The compact network of section III-A for a dataset (1 or 15 LiDAR channels, DVS or not)."""
+def _build(ds: DatasetSpec, info: ModelInfo, tasks: Sequence[str] | None = None) -> nn.Module:
+    """The compact network of section III-A for a dataset (1 or 15 LiDAR channels, DVS or not);
+    ``tasks`` builds it for a subset of its tasks (default all)."""
     return CompactPerception(ds.n_seg, ds.n_bev, lidar_channels=info.lidar_channels, has_dvs=ds.has_dvs,
-                             n_views=ds.n_views)
+                             n_views=ds.n_views, tasks=tuple(tasks or info.tasks))

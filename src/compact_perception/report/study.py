@@ -318,9 +318,10 @@ def weighting_markdown(rows: Sequence[StudyRow], spec: StudySpec, references: Ma
            "- **Δm** (LibMTL's definition): the mean over the K = 4 task metrics of the relative change against the "
            "single-task reference, signed so that positive = better: Δm = (1/K) Σ_k (−1)^d_k (M_m,k − M_b,k) / "
            "M_b,k × 100, d_k = 1 for MAE_DE (lower is better), 0 for the IoUs.",
-           "- **Reference** M_b,k: the single-task network of task k (the same 15L network trained on that task's "
-           "loss alone, arm `single_<task>`), its own task's metric, mean over its seeds on the same dataset. The "
-           "single-task rows are the references (Δm —); their other tasks' heads got no gradient.",
+           "- **Reference** M_b,k: the single-task network of task k (the 15L layout built for that task alone: "
+           "encoders, bottleneck 1 and the task's decoder; for BEVP the whole network, its DE/SS/LS decoders "
+           "without a loss; arm `single_<task>`), its own task's metric, mean over its seeds on the same dataset. "
+           "The single-task rows are the references (Δm —).",
            f"- **Seeds**: every cell is the mean ± sample sd (n − 1) over the training seeds (params.yaml `seeds`: "
            f"{seeds}); {NO_SD} for the sd of one seed. Δm is computed per seed, then averaged. TM (eq. 6) and MV "
            "(eq. 7) are of each run's four test-set means.",

@@ -45,7 +45,7 @@ from .precision import (autocast_context, batch_to_channels_last, float_outputs,
                         resolve_precision, to_channels_last)
 from .provenance import source_fingerprint
 from .schedule import EarlyStop, Plateau
-from ..weighting import build_weighting
+from ..weighting import build_weighting, network_tasks
 
 log = logging.getLogger(__name__)
 
@@ -315,7 +315,8 @@ def _train(params: Params, dataset_id: str, model_id: str, recipe: ModelRecipe, 
     seed_everything(seed)
     torch.use_deterministic_algorithms(True, warn_only=True)
     spec = {"num_seg_classes": len(meta["seg_classes"])}
-    model = build_model(model_id, dataset_id).to(device=device, dtype=dtype)
+    tasks = network_tasks(recipe, catalog.MODELS[model_id].tasks)  # one task for the study's single-task nets
+    model = build_model(model_id, dataset_id, tasks).to(device=device, dtype=dtype)
     if tp.channels_last:
         model = to_channels_last(model)
     lidar_channels = getattr(model, "lidar_channels", 15)
@@ -444,7 +445,8 @@ def _train(params: Params, dataset_id: str, model_id: str, recipe: ModelRecipe, 
         if dist_.is_main:  # the checkpoint first: the logs never hold an epoch it lacks
             if improved:
                 with io.atomic_path(best_path) as tmp:
-                    _save({"model": model.state_dict(), "epoch": epoch, "score": score}, tmp, best_path)
+                    _save({"model": model.state_dict(), "tasks": list(model.tasks), "epoch": epoch, "score": score},
+                          tmp, best_path)
             with io.atomic_path(last_path) as tmp:
                 _save({
                     "digest": digest, "epoch": epoch, "model": model.state_dict(),

@@ -87,6 +87,7 @@ __all__ = [
     "WEIGHTINGS",
     "register",
     "build_weighting",
+    "network_tasks",
     "weighting_class",
     "LossWeighting",
     "StaticWeighting",
@@ -111,6 +112,11 @@ __all__ = [
 def weighting_class(key: str) -> type[LossWeighting]:
     """The class registered as ``key`` (its ``label``, ``params_model`` and ``from_recipe``)."""
     return WEIGHTINGS[key]
+
+
+def network_tasks(recipe: ModelRecipe, tasks: Sequence[str]) -> tuple[str, ...]:
+    """The tasks a network trained with ``recipe`` is built for (all ``tasks`` but for ``single``)."""
+    return WEIGHTINGS[recipe.weighting].network_tasks(recipe, tuple(tasks))
 
 
 def build_weighting(

@@ -68,6 +68,12 @@ class LossWeighting:
             settings = dict(recipe_params(recipe, cls.key, cls.params_model))
         return cls(tasks, **settings, plateau_patience=kw["plateau_patience"], plateau_factor=kw["plateau_factor"])
 
+    @classmethod
+    def network_tasks(cls, recipe: Any, tasks: Sequence[str]) -> tuple[str, ...]:
+        """The tasks the network is built for when trained with this weighting: all of them,
+        except for a method that trains some tasks only (``single``)."""
+        return tuple(tasks)
+
     # ------------------------------------------------------------------ weights
     @property
     def T(self) -> int:
