@@ -18,11 +18,17 @@ from __future__ import annotations
 import argparse
 import io
 import statistics
+import sys
 import time
 from pathlib import Path
 
 import torch
 import yaml
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_train import synthetic_batch  # noqa: E402
+
+from compact_perception.models import build_model  # noqa: E402
 
 
 def lock_rewrite_seconds(path: Path, repeats: int) -> tuple[int, float]:
@@ -52,20 +58,10 @@ def adam_step_ms(params: list[torch.nn.Parameter], fused: bool, repeats: int) ->
 
 
 def train_step_ms(tasks: tuple[str, ...], repeats: int, batch: int = 6, size: int = 32) -> float:
-    from compact_perception.models import build_model
-
     torch.manual_seed(0)
     model = build_model("compact_15l", "A", tasks).train()
     opt = torch.optim.SGD(model.parameters(), lr=0.01, momentum=0.9)
-    g = torch.Generator().manual_seed(0)
-
-    def onehot(lead: tuple[int, ...], c: int) -> torch.Tensor:
-        idx = torch.randint(0, c, (*lead, size, size), generator=g)
-        return torch.nn.functional.one_hot(idx, c).movedim(-1, len(lead)).float()
-
-    b = {"rgb": torch.rand(batch, 4, 3, size, size, generator=g), "dvs": torch.rand(batch, 4, 2, size, size, generator=g),
-         "lidar": torch.rand(batch, 15, size, size, generator=g), "de": torch.rand(batch, 4, 1, size, size, generator=g),
-         "ss": onehot((batch, 4), 23), "ls": onehot((batch,), 23), "bevp": onehot((batch,), 9)}
+    b = synthetic_batch(model, "A", batch, size, "cpu", torch.float32)
     times = []
     for i in range(repeats + 2):
         t0 = time.perf_counter()
@@ -91,8 +87,6 @@ def main() -> None:
               f"about {sec * stages / 60:.1f} min per full run")
     else:
         print(f"{args.lock}: no lock file (run `make repro` first); lock rewrite not measured")
-
-    from compact_perception.models import build_model
 
     segnet = build_model("gradnorm_segnet", "A")
     g = torch.Generator().manual_seed(0)
