@@ -21,7 +21,7 @@ from pathlib import Path
 import torch
 
 from compact_perception.core import io
-from compact_perception.core.catalog import model_ids
+from compact_perception.core.catalog import dataset_ids, model_ids, sim_dataset_ids
 from compact_perception.models import DATASETS, build_model
 from compact_perception.report.efficiency import (CPU_MEMORY_METHOD, CUDA_MEMORY_METHOD, device_name,
                                                    dummy_batch, measure_fps, measure_model, measure_onnx)
@@ -34,7 +34,9 @@ log = logging.getLogger("pipeline.benchmark")
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--params", default="params.yaml")
-    ap.add_argument("--datasets", nargs="+", default=["A", "nuscenes"], choices=["A", "B", "C", "nuscenes"])
+    # Table III: one simulated set stands for all (the same networks), and nuScenes (other class counts)
+    default = [sim_dataset_ids()[0], *(d for d in dataset_ids() if d not in sim_dataset_ids())]
+    ap.add_argument("--datasets", nargs="+", default=default, choices=dataset_ids())
     ap.add_argument("--models", nargs="+", default=list(model_ids()), choices=list(model_ids()))
     ap.add_argument("--out", default="results/benchmark/efficiency.json")
     ap.add_argument("--no-onnx", action="store_true", help="skip the ONNX Runtime figures of the compact models")

@@ -10,6 +10,7 @@ import logging
 import sys
 from pathlib import Path
 
+from compact_perception.core.catalog import sim_dataset_ids
 from compact_perception.core.config import ParamsError
 
 from ._common import start
@@ -17,7 +18,7 @@ from ._common import start
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--dataset", required=True, choices=["A", "B", "C"])
+    ap.add_argument("--dataset", required=True, choices=sim_dataset_ids())
     ap.add_argument("--params", default="params.yaml")
     ap.add_argument("--out", default="data/raw", help="parent of the dataset directory")
     ap.add_argument("--figure-dir", default="reports/figures")

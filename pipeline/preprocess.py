@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 from compact_perception.core.cache import CacheError
+from compact_perception.core.catalog import sim_dataset_ids
 from compact_perception.core.errors import RecordError
 from compact_perception.preprocess import preprocess_dataset
 
@@ -18,7 +19,7 @@ from ._common import start
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--dataset", required=True, choices=["A", "B", "C"])
+    ap.add_argument("--dataset", required=True, choices=sim_dataset_ids())
     ap.add_argument("--params", default="params.yaml")
     ap.add_argument("--raw-root", default="data/raw")
     ap.add_argument("--cache-root", default="data/cache")

@@ -17,8 +17,6 @@ from compact_perception.losses import (
     squared_loss,
 )
 from compact_perception.metrics import (
-    DEPTH_FAR_M,
-    DEPTH_LOG_K,
     class_confusion,
     class_iou,
     combine_tasks,
@@ -307,14 +305,18 @@ def test_multilabel_confusion_by_hand() -> None:
     assert mean_iou(ious) == pytest.approx(0.125)
 
 
-def test_log_depth_constants_match_the_encoders() -> None:
-    from compact_perception.nuscenes.projection import CARLA_LOG_DEPTH_K, carla_log_depth
+def test_the_encoders_and_the_metric_decoder_agree() -> None:
+    """The world's depth camera (uint16) and the nuScenes projection (float) encode what the
+    depth metrics decode: one CARLA log encoding (core/depth.py)."""
+    from compact_perception.nuscenes.projection import carla_log_depth
     from compact_perception.world import camera
 
-    assert DEPTH_FAR_M == camera.DEPTH_FAR_M and DEPTH_LOG_K == camera._LOG_K == CARLA_LOG_DEPTH_K
     d = np.array([5.0, 20.0, 80.0, 500.0])
     x = torch.from_numpy(carla_log_depth(d).astype(np.float64))
     assert decode_log_depth(x).numpy() == pytest.approx(d, rel=1e-6)
+    x16 = torch.from_numpy(camera.encode_depth(d).astype(np.float64) / 65535.0)   # 1/65535 steps of x
+    assert decode_log_depth(x16).numpy() == pytest.approx(d, rel=1e-4)
+    assert camera.decode_depth(camera.encode_depth(d)) == pytest.approx(d, rel=1e-4)
     assert float(decode_log_depth(t(1.0))) == pytest.approx(1000.0)
     assert float(decode_log_depth(t(0.0))) == pytest.approx(1000.0 * math.exp(-5.70378))
     assert float(decode_log_depth(t(1.3))) == pytest.approx(1000.0)                 # clamped to the range

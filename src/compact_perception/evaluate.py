@@ -25,6 +25,7 @@ import torch
 from tqdm.auto import tqdm
 
 from .core import catalog, io
+from .core.depth import DEPTH_FAR_M, DEPTH_LOG_K
 from .data import make_loader, to_device
 from .core.determinism import resolve_device, set_threads
 from .metrics import (DEPTH_METRICS, MV_DEFINITION, class_confusion, class_iou, compute_metrics,
@@ -34,12 +35,6 @@ from .models import build_model
 log = logging.getLogger(__name__)
 
 TASK_METRIC = {t: catalog.metric_of(t) for t in catalog.task_ids()}  # de -> mae_de, ... (the registry)
-SOURCE_LABEL = {
-    "sim": "simulated (embedded world)",
-    "authors": "authors' CARLA dataset",
-    "nuscenes-lidarseg": "nuScenes-lidarseg",
-    "simulated nuScenes-format": "simulated nuScenes-format",
-}
 
 
 SCORE_COLUMNS: tuple[str, ...] = catalog.metric_keys()
@@ -51,7 +46,7 @@ CLASS_IOU_DEFINITION = (
     "truth) has IoU null and is left out of mIoU; all classes of the cache count, including 'unlabeled'/'noise'"
 )
 DEPTH_DEFINITION = (
-    "metric depth d = 1000 m * exp((x - 1) * 5.70378) from the cache's CARLA log depth x in [0, 1] (prediction "
+    f"metric depth d = {DEPTH_FAR_M:g} m * exp((x - 1) * {DEPTH_LOG_K}) from the cache's CARLA log depth x in [0, 1] (prediction "
     "clamped to [0, 1]: 3.33 m .. 1000 m); pixels with ground truth x = 0 (no depth) or x = 1 (1000 m far clip, "
     "sky) left out; per frame over the valid pixels of the 4 views: "
     + ", ".join(DEPTH_METRICS[k].definition for k in DEPTH_COLUMNS)
@@ -157,7 +152,7 @@ def evaluate_run(dataset_id: str, model_id: str, cache_dir: Path, run_dir: Path,
     model = build_model(model_id, dataset_id, checkpoint.get("tasks"))  # the tasks it was trained for
     model.load_state_dict(checkpoint["model"])
     model.to(device).eval()
-    loader = make_loader(cache_dir, "test", getattr(model, "lidar_channels", 15), 1, shuffle=False, seed=0,
+    loader = make_loader(cache_dir, "test", catalog.MODELS[model_id].lidar_channels, 1, shuffle=False, seed=0,
                          num_workers=0, drop_last=False)
     ids = json.loads((cache_dir / "test" / "frame_ids.json").read_text())
     rows, preds, inputs = [], {t: [] for t in model.tasks}, {}
@@ -188,7 +183,7 @@ def evaluate_run(dataset_id: str, model_id: str, cache_dir: Path, run_dir: Path,
         result["class_iou"] = cls
     result.update({
         "n_frames": len(rows),
-        "source": SOURCE_LABEL.get(meta.get("source", "sim"), meta.get("source", "sim")),
+        "source": catalog.source_label(meta.get("source", "sim")),
         "device": torch.cuda.get_device_name() if device.type == "cuda" else "CPU",
         "best_epoch": int(checkpoint.get("epoch", -1)),
     })

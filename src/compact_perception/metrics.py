@@ -41,6 +41,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from .core import catalog
+from .core.depth import DEPTH_FAR_M, DEPTH_LOG_K
 from .losses import as_views
 from .core.registry import Registry
 
@@ -183,7 +184,7 @@ def compute_metrics(outputs: Mapping[str, Tensor], targets: Mapping[str, Tensor]
     for t in ("ss", "ls", "bevp"):
         if t in outputs and t in targets:
             out[f"iou_{t}"] = float(iou(outputs[t], targets[t]))
-    if all(k in out for k in ("mae_de", "iou_ss", "iou_ls", "iou_bevp")):
+    if all(k in out for k in SCORE_TERMS):
         out["tm"] = float(total_metric(out["mae_de"], out["iou_ss"], out["iou_ls"], out["iou_bevp"]))
         out["mv"] = float(metric_variance(out["mae_de"], out["iou_ss"], out["iou_ls"], out["iou_bevp"]))
     return out
@@ -298,10 +299,7 @@ def mean_iou(ious: Any) -> float:
 
 
 #: The cache's depth is CARLA's logarithmic depth in [0, 1] (world/camera.py ``encode_depth``,
-#: nuscenes/projection.py ``carla_log_depth``): ``x = 1 + ln(d / 1000 m) / 5.70378``, so 1.0 is
-#: the 1000 m far plane and 0.0 is 1000 m * exp(-5.70378) = 3.33 m (everything nearer clips).
-DEPTH_FAR_M = 1000.0
-DEPTH_LOG_K = 5.70378
+#: nuscenes/projection.py ``carla_log_depth``), whose constants :mod:`.core.depth` defines.
 
 
 def decode_log_depth(x: Tensor) -> Tensor:

@@ -10,7 +10,10 @@ This module imports nothing heavy (no torch), so the config and every stage can 
 - a **dataset**: its report label and whether the embedded world simulates it;
 - a **model**: its report label, its group (``compact``: the paper's network, trained per
   ``seeds``; ``baseline``: section V-D, per ``baseline_seeds``), the LiDAR channels it reads, its
-  tasks, and the network (``compact_perception.models.NETWORKS``) that builds it.
+  tasks, the network (``compact_perception.models.NETWORKS``) that builds it, its row in the
+  report's tables (``table_order``) and the tasks it gives "the combination of baselines"
+  (``combination``, section V-D: GradNorm's DE and SS, PolarNet's LS, Chen et al.'s BEVP);
+- a **data source**: the label a report gives the source a cache records (:data:`SOURCE_LABEL`).
 
 Adding a model (three files): the network's file in ``models/`` (its factory registers itself with
 ``@register_network``), the model's entry here, and in params.yaml its recipe
@@ -27,7 +30,8 @@ from .registry import Registry
 __all__ = [
     "TaskInfo", "DatasetInfo", "ModelInfo", "TASKS", "DATASETS", "MODELS",
     "task_ids", "dataset_ids", "sim_dataset_ids", "model_ids", "compact_model_ids", "baseline_model_ids",
-    "metric_of", "metric_keys", "higher_is_better", "model_label",
+    "metric_of", "metric_keys", "higher_is_better", "model_label", "table_model_ids", "combination_source",
+    "SOURCE_LABEL", "source_label",
 ]
 
 
@@ -54,6 +58,8 @@ class ModelInfo:
     lidar_channels: int                      # LiDAR input channels read (1 or 15, section IV-C)
     tasks: tuple[str, ...]                   # task ids it predicts
     network: str                             # models.NETWORKS key
+    table_order: int                         # its row in Tables II/III (the paper's order, baselines first)
+    combination: tuple[str, ...] = ()        # the tasks it gives the combination of baselines (section V-D)
 
 
 TASKS: Registry[TaskInfo] = Registry("task", ordered=True)
@@ -70,13 +76,25 @@ DATASETS.register("nuscenes")(DatasetInfo("nuScenes", False))
 
 _ALL = ("de", "ss", "ls", "bevp")
 MODELS: Registry[ModelInfo] = Registry("model", ordered=True)
-MODELS.register("compact_1l")(ModelInfo("1L", "compact", 1, _ALL, "compact"))
-MODELS.register("compact_15l")(ModelInfo("15L", "compact", 15, _ALL, "compact"))
-MODELS.register("compact_15l_mgn")(ModelInfo("15L+MGN (Alg. 1)", "compact", 15, _ALL, "compact"))
-MODELS.register("compact_15l_mgn_authors")(ModelInfo("15L+MGN (authors' code)", "compact", 15, _ALL, "compact"))
-MODELS.register("gradnorm_segnet")(ModelInfo("GradNorm", "baseline", 15, ("de", "ss"), "gradnorm_segnet"))
-MODELS.register("polarnet")(ModelInfo("PolarNet", "baseline", 15, ("ls",), "polarnet"))
-MODELS.register("chen_bev")(ModelInfo("Chen et al.", "baseline", 15, ("bevp",), "chen_bev"))
+MODELS.register("compact_1l")(ModelInfo("1L", "compact", 1, _ALL, "compact", table_order=10))
+MODELS.register("compact_15l")(ModelInfo("15L", "compact", 15, _ALL, "compact", table_order=11))
+MODELS.register("compact_15l_mgn")(ModelInfo("15L+MGN (Alg. 1)", "compact", 15, _ALL, "compact", table_order=12))
+MODELS.register("compact_15l_mgn_authors")(ModelInfo("15L+MGN (authors' code)", "compact", 15, _ALL, "compact",
+                                                     table_order=13))
+MODELS.register("gradnorm_segnet")(ModelInfo("GradNorm", "baseline", 15, ("de", "ss"), "gradnorm_segnet",
+                                             table_order=2, combination=("de", "ss")))
+MODELS.register("polarnet")(ModelInfo("PolarNet", "baseline", 15, ("ls",), "polarnet", table_order=1,
+                                      combination=("ls",)))
+MODELS.register("chen_bev")(ModelInfo("Chen et al.", "baseline", 15, ("bevp",), "chen_bev", table_order=0,
+                                      combination=("bevp",)))
+
+#: How a report names the data source a cache records (``meta.json`` ``source``).
+SOURCE_LABEL: dict[str, str] = {
+    "sim": "simulated (embedded world)",
+    "authors": "authors' CARLA dataset",
+    "nuscenes-lidarseg": "nuScenes-lidarseg",
+    "simulated nuScenes-format": "simulated nuScenes-format",
+}
 
 
 def task_ids() -> tuple[str, ...]:
@@ -123,3 +141,25 @@ def higher_is_better(metric: str) -> bool:
 
 def model_label(model_id: str) -> str:
     return MODELS[model_id].label
+
+
+def table_model_ids() -> tuple[str, ...]:
+    """Every model in the order of the report's tables (:attr:`ModelInfo.table_order`)."""
+    return tuple(sorted(MODELS.keys(), key=lambda m: MODELS[m].table_order))
+
+
+def combination_source() -> dict[str, str]:
+    """The combination of baselines (section V-D, SPEC 6): task metric -> the model it comes from,
+    in task order; each task must be given by exactly one model."""
+    out: dict[str, str] = {}
+    for t in TASKS.keys():
+        givers = [m for m in MODELS.keys() if t in MODELS[m].combination]
+        if len(givers) != 1:
+            raise KeyError(f"task {t!r}: the combination needs exactly one model giving it, got {givers}")
+        out[TASKS[t].metric] = givers[0]
+    return out
+
+
+def source_label(source: str) -> str:
+    """The report label of a cache's ``source`` (the raw value where none is registered)."""
+    return SOURCE_LABEL.get(source, source)

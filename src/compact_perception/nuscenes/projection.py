@@ -27,8 +27,8 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-#: CARLA logarithmic depth constant (ln(1000 m / ~3.33 m) ~= 5.70378).
-CARLA_LOG_DEPTH_K = 5.70378
+from ..core.depth import DEPTH_FAR_M, DEPTH_LOG_K
+
 NO_LABEL = 255
 
 
@@ -140,7 +140,7 @@ def project_points(
 def carla_log_depth(depth_m: np.ndarray) -> np.ndarray:
     """CARLA's logarithmic depth encoding in [0, 1] (float32)."""
     d = np.maximum(np.asarray(depth_m, dtype=np.float64), 1e-6)
-    return np.clip(1.0 + np.log(d / 1000.0) / CARLA_LOG_DEPTH_K, 0.0, 1.0).astype(np.float32)
+    return np.clip(1.0 + np.log(d / DEPTH_FAR_M) / DEPTH_LOG_K, 0.0, 1.0).astype(np.float32)
 
 
 def rasterise_points(

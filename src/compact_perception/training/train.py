@@ -319,7 +319,7 @@ def _train(params: Params, dataset_id: str, model_id: str, recipe: ModelRecipe, 
     model = build_model(model_id, dataset_id, tasks).to(device=device, dtype=dtype)
     if tp.channels_last:
         model = to_channels_last(model)
-    lidar_channels = getattr(model, "lidar_channels", 15)
+    lidar_channels = catalog.MODELS[model_id].lidar_channels
     argmax_tasks = model.argmax_tasks  # softmax heads, scored by their arg-max map (metrics.scored_outputs)
     weighting = build_weighting(recipe, model.tasks, model, plateau_patience=tp.plateau_patience,
                                 plateau_factor=tp.plateau_factor)

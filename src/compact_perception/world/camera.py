@@ -11,13 +11,11 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.classes import CARLA_PALETTE, TAG
+from ..core.depth import DEPTH_FAR_M, DEPTH_LOG_K
 from ..core.config import CameraParams
 from ..geometry import VIEW_YAW_DEG
 from .conditions import TIMES, Condition, sun_vector
 from .raycast import Hits
-
-DEPTH_FAR_M = 1000.0
-_LOG_K = 5.70378
 
 
 def intrinsic_matrix(size: int, fov_deg: float) -> np.ndarray:
@@ -64,13 +62,13 @@ def world_from_ego(ego: np.ndarray, lidar_height: float) -> np.ndarray:
 def encode_depth(depth_m: np.ndarray) -> np.ndarray:
     """CARLA logarithmic depth, normalised 0..1, x 65535 as uint16."""
     with np.errstate(divide="ignore"):
-        d = np.clip(1.0 + np.log(np.maximum(depth_m, 1e-6) / DEPTH_FAR_M) / _LOG_K, 0.0, 1.0)
+        d = np.clip(1.0 + np.log(np.maximum(depth_m, 1e-6) / DEPTH_FAR_M) / DEPTH_LOG_K, 0.0, 1.0)
     return np.rint(d * 65535.0).astype(np.uint16)
 
 
 def decode_depth(depth_u16: np.ndarray) -> np.ndarray:
     """Inverse of :func:`encode_depth` (metres; 0 maps to ~3.33 m)."""
-    return DEPTH_FAR_M * np.exp((depth_u16.astype(np.float64) / 65535.0 - 1.0) * _LOG_K)
+    return DEPTH_FAR_M * np.exp((depth_u16.astype(np.float64) / 65535.0 - 1.0) * DEPTH_LOG_K)
 
 
 def _hash(p: np.ndarray, scale: float) -> np.ndarray:

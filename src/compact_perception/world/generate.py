@@ -20,6 +20,7 @@ import numpy as np
 from tqdm import tqdm
 
 from ..core import io
+from ..core.catalog import sim_dataset_ids
 from ..core.classes import BEV_NAMES, CARLA_NAMES, CARLA_PALETTE, TAG, palette_to_index
 from ..core.config import TOWNS, Params, ParamsError, WorldParams
 from ..geometry import VIEWS
@@ -130,13 +131,11 @@ def render_episode(world_params: WorldParams, town: str, episode_seed: int, n_fr
 # ----------------------------------------------------------------------------- datasets
 def check_dataset_params(params: Params, dataset_id: str) -> None:
     """Fail before any work on impossible dataset settings (message names the key)."""
-    if dataset_id not in ("A", "B", "C"):
-        raise ParamsError(f"datasets.{dataset_id}: not a simulated dataset (A, B, C)")
+    if dataset_id not in sim_dataset_ids():
+        raise ParamsError(f"datasets.{dataset_id}: not a simulated dataset ({', '.join(sim_dataset_ids())})")
     dp = getattr(params.datasets, dataset_id)
     F = dp.frames.at(params.scale)
     E = params.world.frames_per_episode
-    if F < 5:
-        raise ParamsError(f"datasets.{dataset_id}.frames.{params.scale}: must be at least 5, got {F}")
     n = dp.split_ratio.at(params.scale).counts(F)
     if min(n.values()) < 1:
         raise ParamsError(f"datasets.{dataset_id}.frames.{params.scale}: {F} frames leave a split empty "
