@@ -49,8 +49,6 @@ __all__ = [
 
 #: The paper's weighting forms: main runs of these models (model id -> weighting id).
 PAPER_FORMS: dict[str, str] = {"compact_15l": "static", "compact_15l_mgn": "mgn", "compact_15l_mgn_authors": "mgn"}
-#: Weightings whose weights never change: no panel in the loss-weight figure.
-FIXED_WEIGHTINGS: frozenset[str] = frozenset({"static", "none", "single"})
 #: Every score column of a row, in table order.
 SCORES: tuple[str, ...] = catalog.metric_keys() + ("tm", "mv", "dm", "sec_per_epoch")
 SCORE_MD: dict[str, str] = {
@@ -106,7 +104,7 @@ class StudyMethod:
     @property
     def adaptive(self) -> bool:
         """Its weights change during training (a panel in the loss-weight figure)."""
-        return self.weighting not in FIXED_WEIGHTINGS
+        return weighting_class(self.weighting).adaptive
 
 
 def study_methods(spec: StudySpec) -> list[StudyMethod]:

@@ -25,12 +25,14 @@ class LossWeighting:
 
     Every concrete class declares ``label`` (its name in the report) and ``params_model`` (the
     pydantic schema of its recipe section, named like its registry id; ``None`` when it has no
-    settings).
+    settings). ``adaptive`` says whether its loss weights change during training (the report
+    draws those); a method with fixed weights sets it to False.
     """
 
     key: ClassVar[str]                   # the registry id (set by :func:`register`)
     label: ClassVar[str]
     params_model: ClassVar[type | None]
+    adaptive: ClassVar[bool] = True
     grad_scale: float = 1.0
 
     def __init__(

@@ -29,6 +29,7 @@ class SingleTaskWeighting(LossWeighting):
 
     label = "Single-task network"
     params_model = SingleTaskParams
+    adaptive = False
 
     @classmethod
     def network_tasks(cls, recipe: Any, tasks: Sequence[str]) -> tuple[str, ...]:

@@ -12,6 +12,7 @@ class StaticWeighting(LossWeighting):
 
     label = "Equal static weights"
     params_model = None
+    adaptive = False
 
 
 @register("none")
@@ -22,3 +23,4 @@ class NoWeighting(StaticWeighting):
 
     label = "No weighting (plain sum)"
     params_model = None
+    adaptive = False
