@@ -15,9 +15,10 @@ mean and variance over frames); see :data:`CLASS_IOU_DEFINITION` and :data:`DEPT
 """
 from __future__ import annotations
 
-import json
 import logging
+import pickle
 from pathlib import Path
+from typing import Mapping
 
 import numpy as np
 import pandas as pd
@@ -25,11 +26,16 @@ import torch
 from tqdm.auto import tqdm
 
 from .core import catalog, io
+from .core.cache import read_meta, read_split
+from .core.errors import RunError
+from .core.layout import floor_paths
 from .core.depth import DEPTH_FAR_M, DEPTH_LOG_K
 from .data import make_loader, to_device
 from .core.determinism import resolve_device, set_threads
 from .metrics import (DEPTH_METRICS, MV_DEFINITION, class_confusion, class_iou, compute_metrics,
-                      depth_errors_per_sample, mean_iou, multilabel_confusion, scores_from_means, total_metric)
+                      depth_errors_per_sample, mean_iou, multilabel_confusion, scores_from_means, total_metric,
+                      ARGMAX_TASKS, iou_argmax_per_sample)
+from .floor import TRIVIAL, fit_trivial, floor_of, margins
 from .models import build_model
 
 log = logging.getLogger(__name__)
@@ -38,6 +44,15 @@ TASK_METRIC = {t: catalog.metric_of(t) for t in catalog.task_ids()}  # de -> mae
 
 
 SCORE_COLUMNS: tuple[str, ...] = catalog.metric_keys()
+#: Per-frame column suffix of a class map's IoU by the arg-max rule (``iou_ss_argmax``).
+ARGMAX_SUFFIX = "_argmax"
+ARGMAX_COLUMNS: tuple[str, ...] = tuple(f"{catalog.metric_of(t)}{ARGMAX_SUFFIX}" for t in ARGMAX_TASKS)
+ARGMAX_DEFINITION = (
+    "the other scoring rule for the class maps (SS, LS): eq. (5) on the arg-max class map (each pixel's "
+    "highest-scoring class), pixels without a ground-truth label left out, per view and averaged over views; "
+    "mean and population variance over frames. Table II scores every row by eq. (5) on the raw outputs (the "
+    "paper's rule), which lets a sigmoid head predict nothing and leaves a softmax head below 0.5 where it is unsure"
+)
 DEPTH_COLUMNS: tuple[str, ...] = tuple(DEPTH_METRICS.keys())
 CLASS_IOU_DEFINITION = (
     "per-class IoU = TP / (TP + FP + FN) from counts summed over all test frames; SS and LS: predicted class = "
@@ -80,6 +95,12 @@ def summarise(per_frame: pd.DataFrame) -> dict[str, dict[str, float | str]]:
         out["tm"] = {"mean": derived["tm"], "var": float(tm_frames.var(ddof=0)) if tm_frames is not None else 0.0}
         out["mv"] = {"value": derived["mv"], "definition": MV_DEFINITION}
     return out
+
+
+def summarise_argmax(per_frame: pd.DataFrame) -> dict | None:
+    """Mean and variance over frames of the arg-max-rule IoUs (:data:`ARGMAX_COLUMNS`) present."""
+    out: dict = {c[: -len(ARGMAX_SUFFIX)]: _mean_var(per_frame[c]) for c in ARGMAX_COLUMNS if c in per_frame}
+    return {**out, "definition": ARGMAX_DEFINITION} if out else None
 
 
 def summarise_depth(per_frame: pd.DataFrame) -> dict | None:
@@ -136,32 +157,38 @@ def _compact_prediction(task: str, pred: torch.Tensor) -> np.ndarray:
     return (p > 0.5).numpy().astype(np.uint8)
 
 
-def evaluate_run(dataset_id: str, model_id: str, cache_dir: Path, run_dir: Path, out_json: Path,
-                 eval_dir: Path, *, device_pref: str, save_predictions: int, num_threads: int) -> dict:
-    """Score ``run_dir/best.pt`` on the test split of ``cache_dir`` with ``num_threads`` torch
-    threads (``train.num_threads``: the thread count is part of the result)."""
-    cache_dir, run_dir = Path(cache_dir), Path(run_dir)
-    set_threads(num_threads)
-    best = run_dir / "best.pt"
+def load_trained(dataset_id: str, model_id: str, run_dir: Path) -> tuple[torch.nn.Module, int]:
+    """The network of ``run_dir/best.pt`` (built for the tasks it was trained for), in eval mode,
+    and the epoch it was saved at.
+
+    The checkpoint is read with ``weights_only=True``: tensors and plain containers only, so a
+    crafted file cannot run code (``runs/`` can come from a shared DVC cache)."""
+    best = Path(run_dir) / "best.pt"
     if not best.is_file():
-        raise FileNotFoundError(f"{best}: no best checkpoint; has train@{dataset_id}-{model_id} finished?")
-    device = resolve_device(device_pref)
-    meta = json.loads((cache_dir / "meta.json").read_text())
-    n_cls = len(meta["seg_classes"])
-    checkpoint = torch.load(best, map_location="cpu", weights_only=False)
-    model = build_model(model_id, dataset_id, checkpoint.get("tasks"))  # the tasks it was trained for
-    model.load_state_dict(checkpoint["model"])
-    model.to(device).eval()
-    loader = make_loader(cache_dir, "test", catalog.MODELS[model_id].lidar_channels, 1, shuffle=False, seed=0,
-                         num_workers=0, drop_last=False)
-    ids = json.loads((cache_dir / "test" / "frame_ids.json").read_text())
+        raise FileNotFoundError(f"{best}: no best checkpoint; has the training of {dataset_id}/{model_id} finished?")
+    try:
+        checkpoint = torch.load(best, map_location="cpu", weights_only=True)
+        model = build_model(model_id, dataset_id, checkpoint.get("tasks"))  # the tasks it was trained for
+        model.load_state_dict(checkpoint["model"])
+    except (RuntimeError, KeyError, ValueError, AttributeError, pickle.UnpicklingError, EOFError) as err:
+        raise RunError(f"{best}: not a checkpoint of {model_id} on {dataset_id} "
+                       f"({' '.join(str(err).split())[:200]})") from None
+    return model.eval(), int(checkpoint.get("epoch", -1))
+
+
+def _score_frames(model: torch.nn.Module, loader, ids: list[str], n_cls: int, device: torch.device,
+                  save_predictions: int, desc: str) -> tuple[pd.DataFrame, ClassCounts, dict, dict]:
+    """Per-frame scores (batch 1) of ``model`` over the test loader, the class counts, and the
+    predictions and inputs of the first ``save_predictions`` frames."""
     rows, preds, inputs = [], {t: [] for t in model.tasks}, {}
     counts = ClassCounts()
     with torch.no_grad():
-        for i, raw in enumerate(tqdm(loader, desc=f"evaluate {dataset_id}/{model_id}", leave=False)):
+        for i, raw in enumerate(tqdm(loader, desc=desc, leave=False)):
             batch = to_device(raw, device, n_cls)
             out = model(batch)
-            row = {"frame_id": ids[i], **frame_scores(compute_metrics(out, batch, argmax_tasks=model.argmax_tasks))}
+            row = {"frame_id": ids[i], **frame_scores(compute_metrics(out, batch, argmax_tasks=()))}
+            row.update({f"iou_{t}{ARGMAX_SUFFIX}": float(iou_argmax_per_sample(out[t], batch[t])[0])
+                        for t in ARGMAX_TASKS if t in out and t in batch})
             if "de" in out and "de" in batch:
                 row.update({k: float(v[0]) for k, v in depth_errors_per_sample(out["de"], batch["de"]).items()})
             rows.append(row)
@@ -171,31 +198,80 @@ def evaluate_run(dataset_id: str, model_id: str, cache_dir: Path, run_dir: Path,
                     preds[t].append(_compact_prediction(t, out[t]))
                 for k, v in raw.items():
                     inputs.setdefault(k, []).append(v[0].numpy())
-    per_frame = pd.DataFrame(rows)
+    return pd.DataFrame(rows), counts, preds, inputs
+
+
+def score_test_split(model: torch.nn.Module, dataset_id: str, name: str, cache_dir: Path, out_json: Path,
+                     eval_dir: Path, *, device: torch.device, lidar_channels: int, save_predictions: int,
+                     floor: Mapping[str, float] | None = None, extra: Mapping[str, object] | None = None) -> dict:
+    """Score ``model`` (a trained network or a trivial predictor, :mod:`.floor`) on the test split of
+    ``cache_dir``, frame by frame, and write ``out_json`` (Table II's numbers and the extra
+    metrics), ``eval_dir/per_frame.csv`` and the saved predictions. ``floor``: the per-task floor
+    (:func:`.floor.floor_of`), whose margins go into ``floor_margin``; ``extra``: more keys for
+    ``out_json``."""
+    cache_dir = Path(cache_dir)
+    meta = read_meta(cache_dir)
+    n_cls = len(meta["seg_classes"])
+    model.to(device).eval()
+    loader = make_loader(cache_dir, "test", lidar_channels, 1, shuffle=False, seed=0, num_workers=0, drop_last=False)
+    ids = read_split(cache_dir, "test", meta).frame_ids
+    per_frame, counts, preds, inputs = _score_frames(model, loader, ids, n_cls, device, save_predictions,
+                                                     f"evaluate {dataset_id}/{name}")
     result: dict = dict(summarise(per_frame))
-    depth = summarise_depth(per_frame)
-    if depth is not None:
-        result["depth"] = depth
-    class_names = {"ss": list(meta["seg_classes"]), "ls": list(meta["seg_classes"]),
-                   "bevp": list(meta.get("bev_classes") or [])}
-    cls = counts.summary(class_names)
+    for key, block in (("argmax", summarise_argmax(per_frame)), ("depth", summarise_depth(per_frame))):
+        if block is not None:
+            result[key] = block
+    cls = counts.summary({"ss": list(meta["seg_classes"]), "ls": list(meta["seg_classes"]),
+                          "bevp": list(meta.get("bev_classes") or [])})
     if cls:
         result["class_iou"] = cls
-    result.update({
-        "n_frames": len(rows),
-        "source": catalog.source_label(meta.get("source", "sim")),
-        "device": torch.cuda.get_device_name() if device.type == "cuda" else "CPU",
-        "best_epoch": int(checkpoint.get("epoch", -1)),
-    })
-    eval_dir = Path(eval_dir)
+    if floor is not None:
+        result["floor_margin"] = margins({k: v["mean"] for k, v in result.items() if isinstance(v, dict)
+                                          and "mean" in v}, floor)
+    result.update({"n_frames": len(per_frame), "source": catalog.source_label(meta.get("source", "sim")),
+                   "device": torch.cuda.get_device_name() if device.type == "cuda" else "CPU", **(extra or {})})
+    _write_outputs(Path(eval_dir), Path(out_json), result, per_frame, ids, preds, inputs, save_predictions)
+    log.info("%s/%s test: %s", dataset_id, name,
+             {k: round(v["mean"], 4) for k, v in result.items() if isinstance(v, dict) and "mean" in v})
+    return result
+
+
+def _write_outputs(eval_dir: Path, out_json: Path, result: dict, per_frame: pd.DataFrame, ids: list[str],
+                   preds: dict, inputs: dict, save_predictions: int) -> None:
     io.write_text(eval_dir / "per_frame.csv", per_frame.to_csv(index=False, float_format="%.6f"))
-    n_saved = min(save_predictions, len(rows))
+    n_saved = min(save_predictions, len(per_frame))
     io.write_npz(eval_dir / "predictions.npz",
                  {"frame_ids": np.array(ids[:n_saved]), **{t: np.stack(v) for t, v in preds.items() if v}})
     gt = {f"gt_{k}": np.stack(v) for k, v in inputs.items() if k in TASK_METRIC}
     ins = {k: np.stack(v) for k, v in inputs.items() if k not in TASK_METRIC}
     io.write_npz(eval_dir / "inputs.npz", {"frame_ids": np.array(ids[:n_saved]), **ins, **gt})
     io.write_json(out_json, result)
-    log.info("%s/%s test: %s", dataset_id, model_id,
-             {k: round(v["mean"], 4) for k, v in result.items() if isinstance(v, dict) and "mean" in v})
-    return result
+
+
+def evaluate_run(dataset_id: str, model_id: str, cache_dir: Path, run_dir: Path, out_json: Path,
+                 eval_dir: Path, *, device_pref: str, save_predictions: int, num_threads: int,
+                 floor: Mapping[str, float] | None = None) -> dict:
+    """Score ``run_dir/best.pt`` on the test split of ``cache_dir`` with ``num_threads`` torch
+    threads (``train.num_threads``: the thread count is part of the result)."""
+    set_threads(num_threads)
+    read_meta(cache_dir)  # a missing or broken cache is named before the checkpoint is read
+    model, best_epoch = load_trained(dataset_id, model_id, Path(run_dir))
+    return score_test_split(model, dataset_id, model_id, cache_dir, out_json, eval_dir,
+                            device=resolve_device(device_pref), lidar_channels=catalog.MODELS[model_id].lidar_channels,
+                            save_predictions=save_predictions, floor=floor, extra={"best_epoch": best_epoch})
+
+
+def evaluate_floors(dataset_id: str, cache_dir: Path, root: Path | str = ".", *, save_predictions: int,
+                    num_threads: int) -> dict[str, float]:
+    """Fit every trivial predictor (:data:`.floor.TRIVIAL`) on the train split of ``cache_dir``, score
+    it on the test split into ``results/<ds>/<id>/metrics.json`` and ``data/eval/<ds>/<id>/``, and
+    return the per-task floor (:func:`.floor.floor_of`)."""
+    set_threads(num_threads)
+    means = {}
+    for tid in TRIVIAL.keys():
+        paths = floor_paths(dataset_id, tid, root)
+        res = score_test_split(fit_trivial(tid, cache_dir), dataset_id, tid, cache_dir, paths.metrics_path,
+                               paths.eval_dir, device=torch.device("cpu"), lidar_channels=15,
+                               save_predictions=save_predictions, extra={"predictor": TRIVIAL[tid].label})
+        means[tid] = {k: v["mean"] for k, v in res.items() if isinstance(v, dict) and "mean" in v}
+    return floor_of(means)

@@ -56,6 +56,8 @@ __all__ = [
     "argmax_one_hot",
     "scored_outputs",
     "compute_metrics_per_sample",
+    "iou_argmax_per_sample",
+    "ARGMAX_TASKS",
     "combine_tasks",
     "scores_from_means",
     "total_metric_partial",
@@ -188,6 +190,23 @@ def compute_metrics(outputs: Mapping[str, Tensor], targets: Mapping[str, Tensor]
         out["tm"] = float(total_metric(out["mae_de"], out["iou_ss"], out["iou_ls"], out["iou_bevp"]))
         out["mv"] = float(metric_variance(out["mae_de"], out["iou_ss"], out["iou_ls"], out["iou_bevp"]))
     return out
+
+
+@torch.no_grad()
+def iou_argmax_per_sample(pred: Tensor, target: Tensor) -> Tensor:
+    """IoU of the **arg-max class map** per sample (B,): each pixel's highest-scoring class as a
+    one-hot map, scored by eq. (5) per view over the pixels that have a ground-truth label (an
+    all-zero target vector, 255 in the cache, is left out: no label to be right or wrong about),
+    averaged over views. The standard reading of a segmentation map, fair to softmax and sigmoid
+    heads alike; Table II keeps eq. (5) on the raw outputs (the paper's rule, SPEC 6)."""
+    g = as_views(target.detach())
+    labelled = (g.amax(dim=2, keepdim=True) > 0.5).to(g.dtype)               # (B,V,1,H,W)
+    p = argmax_one_hot(as_views(pred.detach()).to(g.dtype)) * labelled
+    return iou_per_sample(p, g)
+
+
+#: The task heads scored by the arg-max rule beside eq. (5) (the class maps: SS and LS).
+ARGMAX_TASKS: tuple[str, ...] = ("ss", "ls")
 
 
 def compute_metrics_per_sample(outputs: Mapping[str, Tensor], targets: Mapping[str, Tensor], *,

@@ -15,13 +15,15 @@ count at the end; everything is built inside :func:`compact_perception.core.io.a
 so an error or an interruption leaves no cache directory behind.
 
 A frame dict holds numpy arrays plus an optional ``"frame_id"`` (str); frames without
-one are named ``<split>_<index:06d>``.
+one are named ``<split>_<index:06d>``. Frames come in clusters of consecutive, correlated frames
+(an episode of the world, a nuScenes scene): :func:`frame_cluster` reads the cluster from the id.
 """
 from __future__ import annotations
 
 import json
 import logging
 import os
+import re
 import struct
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -37,6 +39,28 @@ log = logging.getLogger(__name__)
 CACHE_FORMAT_VERSION = 1
 _HEADER_LEN = 256  # fixed .npy header size (magic + version + len + dict), multiple of 64
 ID_KEY = "frame_id"
+
+
+#: ``<cluster>_<step>``: the world's ``town01_ep0003_007`` and nuScenes' ``scene-0061_012``.
+_CLUSTERED_ID = re.compile(r"^(?P<cluster>.+)_(?P<step>\d{3})$")
+#: Consecutive frames grouped into one cluster where the id records none (the authors' release).
+AUTHORS_BLOCK = 10
+
+
+def frame_cluster(frame_id: str) -> str:
+    """The cluster (a drive of consecutive, correlated frames) of a frame id: the episode of a
+    simulated frame (``town02_ep0035_004`` -> ``town02_ep0035``), the scene of a nuScenes sample
+    (``scene-0061_012`` -> ``scene-0061``). The authors' release names frames by a number only
+    (``0042.png``) and records no episode: there, blocks of :data:`AUTHORS_BLOCK` consecutive
+    numbers stand in for episodes (``0042.png`` -> ``block0004``), an approximation of the drives
+    it was recorded in. Any other id is a cluster of its own."""
+    m = _CLUSTERED_ID.match(frame_id)
+    if m:
+        return m.group("cluster")
+    stem = frame_id.rsplit(".", 1)[0]
+    if stem.isdigit():
+        return f"block{int(stem) // AUTHORS_BLOCK:04d}"
+    return frame_id
 
 
 class CacheError(ValueError):

@@ -6,14 +6,16 @@
 
 ``k`` is one of params.yaml's ``seeds`` (``baseline_seeds`` for a baseline). The loss-balancing
 study's runs live under ``runs/study/<arm>/seed<k>/<ds>/`` (:func:`study_paths`). Every stage and
-the report build these paths here.
+the report build these paths here. The trivial predictors of the floor (:mod:`..floor`), fitted
+once per dataset, have no seed: ``results/<ds>/<id>/metrics.json`` and ``data/eval/<ds>/<id>/``
+(:func:`floor_paths`).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["RunPaths", "run_paths", "study_paths"]
+__all__ = ["RunPaths", "run_paths", "study_paths", "floor_paths"]
 
 
 @dataclass(frozen=True)
@@ -42,4 +44,13 @@ def study_paths(arm: str, seed: int, dataset: str, root: Path | str = ".") -> Ru
     dataset of ``study.datasets``, so its outputs are the ``seed<k>`` folders."""
     root, tail = Path(root), Path("study") / arm / f"seed{seed}" / dataset
     return RunPaths(dataset, f"study:{arm}", seed, root / "runs" / tail, root / "results" / tail / "metrics.json",
+                    root / "data" / "eval" / tail)
+
+
+def floor_paths(dataset: str, trivial_id: str, root: Path | str = ".") -> RunPaths:
+    """Paths of the evaluation of trivial predictor ``trivial_id`` (``floor_pixel``, ...) on
+    ``dataset``: ``results/<ds>/<id>/metrics.json`` and ``data/eval/<ds>/<id>/``; it has no run
+    folder (nothing is trained) and no seed (it is deterministic; ``seed`` is -1)."""
+    root, tail = Path(root), Path(dataset) / trivial_id
+    return RunPaths(dataset, trivial_id, -1, root / "runs" / tail, root / "results" / tail / "metrics.json",
                     root / "data" / "eval" / tail)
