@@ -86,7 +86,7 @@ def score(model: torch.nn.Module | None, cache: Path, n_cls: int, batch: int = 1
 
 def load_best(model_id: str, ds: str, run_dir: Path) -> torch.nn.Module:
     m = build_model(model_id, ds)
-    m.load_state_dict(torch.load(run_dir / "best.pt", map_location="cpu", weights_only=False)["model"])
+    m.load_state_dict(torch.load(run_dir / "best.pt", map_location="cpu", weights_only=True)["model"])
     return m.eval()
 
 

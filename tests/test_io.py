@@ -30,6 +30,23 @@ def test_atomic_path_leaves_nothing_on_error(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_a_kill_inside_atomic_path_leaves_a_temporary_that_remove_leftovers_clears(tmp_path):
+    """A process killed between mkstemp and the rename (no exception handler runs) leaves
+    ``.best.pt.<random>.tmp``; :func:`io.remove_leftovers` removes it and nothing else."""
+    import subprocess
+    import sys
+
+    code = ("import os, sys; from compact_perception.core import io\n"
+            "with io.atomic_path(sys.argv[1]) as tmp:\n    os.kill(os.getpid(), 9)\n")
+    proc = subprocess.run([sys.executable, "-c", code, str(tmp_path / "best.pt")], capture_output=True)
+    assert proc.returncode == -9
+    (tmp_path / "last.pt").write_bytes(b"kept")
+    left = [p.name for p in tmp_path.iterdir() if p.name.startswith(".best.pt.") and p.name.endswith(".tmp")]
+    assert len(left) == 1
+    assert [p.name for p in io.remove_leftovers(tmp_path)] == left
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["last.pt"]
+
+
 def test_atomic_dir_swaps_only_on_success(tmp_path):
     target = tmp_path / "ds"
     with pytest.raises(KeyboardInterrupt):

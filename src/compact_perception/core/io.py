@@ -36,6 +36,17 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
         raise
 
 
+def remove_leftovers(folder: str | os.PathLike) -> list[Path]:
+    """Delete the temporary files :func:`atomic_path` leaves in ``folder`` when its process is
+    killed between creating one and renaming it (``.<name>.<random>.tmp``); returns them. Call it
+    where a process takes the folder over (a training run resuming), never while another writes."""
+    folder = Path(folder)
+    found = sorted(folder.glob(".*.tmp")) if folder.is_dir() else []
+    for f in found:
+        f.unlink(missing_ok=True)
+    return found
+
+
 def write_bytes(path: str | os.PathLike, data: bytes) -> None:
     with atomic_path(path) as tmp:
         tmp.write_bytes(data)
