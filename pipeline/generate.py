@@ -12,6 +12,7 @@ from pathlib import Path
 
 from compact_perception.core.catalog import sim_dataset_ids
 from compact_perception.core.config import ParamsError
+from compact_perception.core.errors import os_error_line
 
 from ._common import start
 
@@ -43,14 +44,19 @@ def main(argv: list[str] | None = None) -> int:
         out = generate_dataset(params, args.dataset, Path(args.out) / args.dataset)
     except ParamsError as err:
         sys.exit(f"error: {err}")
+    except OSError as err:  # a full disk: atomic_dir has removed the partial dataset
+        sys.exit(f"error: {os_error_line(err, Path(args.out) / args.dataset)}")
     ep = next(e for e in plan_episodes(params, args.dataset) if e["split"] == "test")
     rec = None
     for rec in render_episode(params.world, ep["town"], ep["seed"], min(2, ep["frames"]),
                               params.world.resolution.at(params.scale), episode=ep["index"]):
         pass
     assert rec is not None
-    save_frame_figure(rec, Path(args.figure_dir) / f"world_{args.dataset}.png", params.world.lidar.range_m,
-                      title=f"dataset {args.dataset}: {rec['meta']}")
+    figure = Path(args.figure_dir) / f"world_{args.dataset}.png"
+    try:
+        save_frame_figure(rec, figure, params.world.lidar.range_m, title=f"dataset {args.dataset}: {rec['meta']}")
+    except OSError as err:
+        sys.exit(f"error: {os_error_line(err, figure)}")
     logging.getLogger("generate").info("wrote %s and the figure", out)
     return 0
 

@@ -11,7 +11,7 @@ from pathlib import Path
 
 from compact_perception.core.cache import CacheError
 from compact_perception.core.catalog import sim_dataset_ids
-from compact_perception.core.errors import RecordError
+from compact_perception.core.errors import RecordError, os_error_line
 from compact_perception.preprocess import preprocess_dataset
 
 from ._common import start
@@ -36,6 +36,8 @@ def main(argv: list[str] | None = None) -> int:
         )
     except (RecordError, CacheError) as err:
         sys.exit(f"error: {err}")
+    except OSError as err:  # a full disk: the cache is built in a temporary folder, removed on failure
+        sys.exit(f"error: {os_error_line(err, Path(args.cache_root) / args.dataset)}")
     return 0
 
 

@@ -279,3 +279,69 @@ def test_missing_dataroot_stops_ingest(tmp_path, nus_root):
     msg = _exit_message(main, ["--params", str(params), "--out", str(out)])
     assert msg.startswith("error: datasets.nuscenes.dataroot: nuScenes dataroot not found: ") and str(root) in msg
     assert not (tmp_path / "cache").exists()
+
+
+# ----------------------------------------------------------------------------- a full disk while writing data
+def _tiny_sim_params(tmp_path: Path) -> Path:
+    d = repo_params_dict()
+    d["world"]["resolution"]["default"] = 16
+    d["world"]["lidar"]["horizontal_samples"] = 64
+    d["world"]["frames_per_episode"] = 1
+    d["world"]["workers"] = 1
+    d["datasets"]["A"]["frames"]["default"] = 5
+    d["preprocess"]["workers"] = 1
+    return _write_params(tmp_path / "params.yaml", d)
+
+
+def _disk_full(*_a, **_k):
+    import errno
+
+    raise OSError(errno.ENOSPC, "No space left on device", "data/raw/A/frames/town01_ep0000_000.npz")
+
+
+def test_disk_full_stops_generate_with_one_line(tmp_path, monkeypatch):
+    """Generation that cannot write a frame: one line naming the file and the reason, and no
+    dataset folder left behind (it is built in a temporary folder)."""
+    from compact_perception.world import generate as gen
+    from pipeline.generate import main
+
+    params = _tiny_sim_params(tmp_path)
+    monkeypatch.setattr(gen.io, "write_npz", _disk_full)
+    monkeypatch.chdir(tmp_path)
+    msg = _exit_message(main, ["--dataset", "A", "--params", str(params), "--out", "raw", "--figure-dir", "figs"])
+    assert msg == "error: data/raw/A/frames/town01_ep0000_000.npz: could not write (No space left on device)"
+    assert not (tmp_path / "raw").exists() or not any((tmp_path / "raw").iterdir())
+
+
+def test_disk_full_stops_preprocess_with_one_line(tmp_path, monkeypatch):
+    from compact_perception.core import cache as cache_mod
+    from pipeline.generate import main as generate
+    from pipeline.preprocess import main
+
+    params = _tiny_sim_params(tmp_path)
+    monkeypatch.chdir(tmp_path)
+    assert generate(["--dataset", "A", "--params", str(params), "--out", "raw", "--figure-dir", "figs"]) == 0
+
+    def full(*_a, **_k):
+        import errno
+
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(cache_mod.np, "save", full)
+    monkeypatch.setattr(cache_mod.cio, "write_json", full)
+    msg = _exit_message(main, ["--dataset", "A", "--params", str(params), "--raw-root", "raw",
+                               "--cache-root", "cache", "--figures", "figs"])
+    assert msg == "error: cache/A: could not write (No space left on device)"
+    assert not (tmp_path / "cache" / "A").exists()
+
+
+def test_missing_meta_stops_evaluate_naming_the_cache(tmp_path, monkeypatch):
+    from pipeline.evaluate import main
+
+    root = _eval_tree(tmp_path)
+    (root / "data" / "cache" / "A" / "meta.json").unlink()
+    before = _files(root)
+    monkeypatch.chdir(root)
+    msg = _exit_message(main, ["--dataset", "A", "--model", "compact_1l", "--params", "params.yaml"])
+    assert "data/cache/A" in msg and "meta.json" in msg
+    assert _files(root) == before
