@@ -190,6 +190,35 @@ def test_softmax_tasks_are_scored_by_their_argmax_map() -> None:
     assert per["iou_ss"].tolist() == pytest.approx([1 / 3])
 
 
+def test_both_scoring_rules_by_hand_on_a_sigmoid_ls_head() -> None:
+    """The two rules of every class map (issue 24 item 5) on one LS map, 3 classes, 3 cells.
+    Sigmoid outputs: cell 0 = [0.7, 0.6, 0.1] (two classes fire), cell 1 = [0.2, 0.3, 0.4] (none
+    fires), cell 2 = [0.1, 0.2, 0.9]. Ground truth: cell 0 class 1, cell 1 class 2, cell 2 no
+    label (no LiDAR point: the all-zero vector).
+    Eq. (5) on the raw outputs: predicted {c0 k0, c0 k1, c2 k2}, truth {c0 k1, c1 k2}:
+    intersection 1, union 4 -> 0.25 (cell 2's prediction counts against it: a point is predicted
+    where there is none).
+    Arg-max rule: cell 0 -> class 0, cell 1 -> class 2, cell 2 left out (no label): predicted
+    {c0 k0, c1 k2}, truth {c0 k1, c1 k2}: intersection 1, union 3 -> 1/3."""
+    from compact_perception.metrics import iou_argmax_per_sample
+
+    out = torch.tensor([[0.7, 0.2, 0.1], [0.6, 0.3, 0.2], [0.1, 0.4, 0.9]], dtype=D).reshape(1, 3, 1, 3)
+    gt = torch.tensor([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], dtype=D).reshape(1, 3, 1, 3)
+    assert compute_metrics({"ls": out}, {"ls": gt}, argmax_tasks=())["iou_ls"] == pytest.approx(0.25)
+    assert iou_argmax_per_sample(out, gt).tolist() == pytest.approx([1 / 3])
+
+
+def test_argmax_rule_averages_views_and_keeps_every_labelled_pixel() -> None:
+    """SS, two views of 2 pixels, 2 classes, every pixel labelled. View 0: outputs argmax
+    [0, 1], truth [0, 1] -> IoU 1. View 1: argmax [0, 0], truth [1, 1] -> intersection 0,
+    union 4 -> 0. Mean over views 0.5."""
+    from compact_perception.metrics import iou_argmax_per_sample
+
+    out = torch.tensor([[[0.9, 0.2], [0.1, 0.8]], [[0.6, 0.7], [0.4, 0.3]]], dtype=D).reshape(1, 2, 2, 1, 2)
+    gt = torch.tensor([[[1.0, 0.0], [0.0, 1.0]], [[0.0, 0.0], [1.0, 1.0]]], dtype=D).reshape(1, 2, 2, 1, 2)
+    assert iou_argmax_per_sample(out, gt).tolist() == pytest.approx([0.5])
+
+
 def test_compute_metrics_keys_and_combine() -> None:
     g = torch.Generator().manual_seed(4)
     out = {"de": torch.rand(2, 4, 1, 4, 4, generator=g, dtype=D), "ss": torch.rand(2, 4, 3, 4, 4, generator=g, dtype=D),
