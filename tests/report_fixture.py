@@ -21,15 +21,15 @@ from typing import Iterable, Mapping, Optional, Sequence
 import numpy as np
 import pandas as pd
 
-TASK_COLUMNS: tuple[str, ...] = ("mae_de", "iou_ss", "iou_ls", "iou_bevp")
-ALL = TASK_COLUMNS
-TASKS: dict[str, tuple[str, ...]] = {
-    "compact_1l": ALL, "compact_15l": ALL, "compact_15l_mgn": ALL, "compact_15l_mgn_authors": ALL,
-    "gradnorm_segnet": ("mae_de", "iou_ss"), "polarnet": ("iou_ls",), "chen_bev": ("iou_bevp",),
-}
-MODELS: tuple[str, ...] = tuple(TASKS)
-COMPACT: tuple[str, ...] = ("compact_1l", "compact_15l", "compact_15l_mgn", "compact_15l_mgn_authors")
-BASELINES: tuple[str, ...] = ("gradnorm_segnet", "polarnet", "chen_bev")
+from compact_perception.core import catalog
+
+TASK_COLUMNS: tuple[str, ...] = catalog.metric_keys()
+#: The test metrics each model scores (its tasks' metrics), from the model registry.
+TASKS: dict[str, tuple[str, ...]] = {m: tuple(catalog.metric_of(t) for t in catalog.MODELS[m].tasks)
+                                     for m in catalog.model_ids()}
+MODELS: tuple[str, ...] = catalog.model_ids()
+COMPACT: tuple[str, ...] = catalog.compact_model_ids()
+BASELINES: tuple[str, ...] = catalog.baseline_model_ids()
 MGN: tuple[str, ...] = ("compact_15l_mgn", "compact_15l_mgn_authors")
 SEEDS: tuple[int, ...] = (0, 1, 2)
 

@@ -11,12 +11,13 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from compact_perception.report.claims import (BEVP_MARGIN, CLAIMS, MGN_CLAIMS, MGN_VARIANTS, MV_MARGIN, NO_DATA,
+from compact_perception.report.claims import (BEVP_MARGIN, CLAIMS, MGN_CLAIMS, MV_MARGIN, NO_DATA,
                                               SIMULATED_ONLY, build_claims,
                                               claims_for_dataset, mgn_weight_margins, verdict_counts, write_claims)
 from compact_perception.report.collect import (ReportInputError, align, combination_frames, list_runs,
                                                load_row_frames, read_per_frame)
 from compact_perception.report.paper import load_paper_numbers
+from compact_perception.report.schema import MGN_FORMS
 from report_fixture import (COMPACT, MGN, MODELS, SEEDS, bases_with, build_tree, per_frame, run_dirs, seed_map,
                             write_json, write_run)
 
@@ -51,7 +52,7 @@ def test_scorecard_verdicts_and_paper_differences(tmp_path: Path) -> None:
         if c.startswith("efficiency/"):                       # only with the benchmark's file
             continue
         for ds in ("A", "C"):
-            expected += [(c, ds, m) for m in MGN_VARIANTS] if c in MGN_CLAIMS else [(c, ds, None)]
+            expected += [(c, ds, m) for m in MGN_FORMS] if c in MGN_CLAIMS else [(c, ds, None)]
     assert [(r.claim, r.dataset, r.model if r.variant else None) for r in rows] == expected
     lt = _by(rows, "lidar-tm")
     assert lt.verdict == "reproduced" and lt.paper == pytest.approx(0.004) and lt.n_test_frames == N

@@ -161,13 +161,13 @@ def test_depth_metrics_derive_from_their_registry():
 
     from compact_perception import evaluate
     from compact_perception.metrics import DEPTH_METRICS, depth_errors_per_sample
-    from compact_perception.report import tables
+    from compact_perception.report.tables import extra
 
     keys = tuple(DEPTH_METRICS.keys())
-    assert evaluate.DEPTH_COLUMNS == keys and tables.EXTRA_DEPTH == keys
+    assert evaluate.DEPTH_COLUMNS == keys and extra.EXTRA_DEPTH == keys
     for k in keys:
         assert DEPTH_METRICS[k].definition in evaluate.DEPTH_DEFINITION
-        assert tables.EXTRA_MD[k] == DEPTH_METRICS[k].label
-        assert f"{k}_mean" in tables.extra_csv([]).splitlines()[0]
+        assert extra.EXTRA_MD[k] == DEPTH_METRICS[k].label
+        assert f"{k}_mean" in extra.extra_csv([]).splitlines()[0]
     x = torch.full((1, 4, 1, 2, 2), 0.5, dtype=torch.float64)
     assert set(depth_errors_per_sample(x, x)) == set(keys) | {"n_valid"}

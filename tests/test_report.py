@@ -4,6 +4,7 @@ per run (tests/report_fixture.py writes the documented seed<k> layout)."""
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import math
 import time
@@ -14,16 +15,20 @@ import pytest
 import torch
 from torch import nn
 
+from compact_perception.core import catalog
+from compact_perception.core.registry import Registry
 from compact_perception.metrics import scores_from_means
 from compact_perception.report import efficiency as eff
+from compact_perception.report import schema
 from compact_perception.report.collect import (ReportInputError, aggregate_cells, Cell, load_results, load_row_frames,
                                                read_metrics)
 from compact_perception.report.figures import plot_loss_weights, plot_qualitative, plot_training_curves
 from compact_perception.report.index import HEADLINE_KEY, HEADLINE_MODEL, build_reports
 from compact_perception.report.plots import write_plot_data
-from compact_perception.report.paper import DATASETS, ROW_IDS, TASK_COLUMNS, load_paper_numbers
-from compact_perception.report.tables import (build_table2, build_table3, column_bootstrap, table2_markdown,
-                                              write_table2)
+from compact_perception.report.paper import load_paper_numbers
+from compact_perception.report.schema import ROW_ORDER, TASK_COLUMNS, paper_row
+from compact_perception.report.tables.table2 import build_table2, column_bootstrap, table2_markdown, write_table2
+from compact_perception.report.tables.table3 import build_table3
 from report_fixture import (MGN, MODELS, SEEDS, TASKS, bases_with, build_tree, n_epochs, per_frame, run_dirs,
                             seed_map, write_json, write_run)
 
@@ -41,10 +46,10 @@ ROWS = ["chen_bev", "polarnet", "gradnorm_segnet", "combination", "compact_1l", 
 # ----------------------------------------------------------------------------- paper numbers
 def test_paper_numbers_complete_and_self_consistent() -> None:
     p = load_paper_numbers()
-    assert set(p.table2) == set(DATASETS)
-    for ds in DATASETS:
+    assert set(p.table2) == set(catalog.dataset_ids())
+    for ds in catalog.dataset_ids():
         rows = p.table2[ds]
-        assert set(rows) == set(ROW_IDS)
+        assert set(rows) == {paper_row(r) for r in ROW_ORDER}     # every row of the report has its printed row
         # the printed combination TM / MV follow from the printed baseline cells (3-decimal rounding;
         # tests/test_losses_metrics.py checks MV at the printed precision row by row)
         s = scores_from_means({"mae_de": rows["gradnorm_segnet"].value("mae_de"),
@@ -63,6 +68,23 @@ def test_paper_numbers_complete_and_self_consistent() -> None:
         assert sum(r.params * r.copies for r in parts) == rows3["combination"].total_params
         assert sum(r.size_mb * r.copies for r in parts) == pytest.approx(rows3["combination"].total_size_mb, abs=1e-6)
     assert p.table3["simulation"]["compact_15l"].params == 2521504 and p.table3_device == "NVIDIA GTX 1080 Ti"
+
+
+# ----------------------------------------------------------------------------- rows and columns
+def test_rows_and_columns_derive_from_the_registries(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Table rows: the catalog's models by ``table_order``, the combination right after the last
+    model that gives it a task; Table II's columns: the task metrics, then TM and MV."""
+    assert ROW_ORDER == tuple(ROWS) and schema.COMBINATION_MODELS == ("chen_bev", "polarnet", "gradnorm_segnet")
+    assert schema.TABLE2_COLUMNS == TASK_COLUMNS + ("tm", "mv") and TASK_COLUMNS == catalog.metric_keys()
+    assert schema.COLUMN_TEX["iou_bevp"] == "$IoU_{BEVP}$" and schema.COLUMN_TEX["tm"] == "$TM$"
+    assert schema.LOWER_IS_BETTER == {"mae_de", "tm", "mv"}
+    moved = Registry("model", ordered=True)      # PolarNet's row after every compact model
+    for m in catalog.model_ids():
+        info = catalog.MODELS[m]
+        moved.register(m)(dataclasses.replace(info, table_order=99) if m == "polarnet" else info)
+    monkeypatch.setattr(catalog, "MODELS", moved)
+    assert schema.row_ids() == ("chen_bev", "gradnorm_segnet", "compact_1l", "compact_15l", "compact_15l_mgn",
+                                "compact_15l_mgn_authors", "polarnet", "combination")
 
 
 # ----------------------------------------------------------------------------- efficiency

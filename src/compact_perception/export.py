@@ -33,7 +33,7 @@ log = logging.getLogger(__name__)
 
 #: ONNX opset of the exported graphs (bilinear ``Resize`` with ``align_corners`` needs >= 11).
 OPSET = 17
-__all__ = ["OPSET", "OnnxWrapper", "export_onnx", "onnx_session", "onnxruntime_latency", "onnx_inputs"]
+__all__ = ["OPSET", "OnnxWrapper", "export_onnx", "onnx_session", "onnxruntime_latency"]
 
 
 class OnnxWrapper(nn.Module):
@@ -61,12 +61,6 @@ def _input_names(model: nn.Module, batch: Mapping[str, Tensor]) -> list[str]:
     if missing:
         raise KeyError(f"example batch lacks {missing}; has {sorted(batch)}")
     return names
-
-
-def onnx_inputs(path: str | Path, batch: Mapping[str, Tensor]) -> dict[str, np.ndarray]:
-    """The arrays of ``batch`` that the ONNX graph at ``path`` takes, by input name (float32)."""
-    sess = onnx_session(path, threads=1)
-    return {i.name: batch[i.name].detach().float().cpu().contiguous().numpy() for i in sess.get_inputs()}
 
 
 def onnx_session(path: str | Path, threads: int | None = None) -> Any:

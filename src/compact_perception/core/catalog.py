@@ -7,6 +7,8 @@ This module imports nothing heavy (no torch), so the config and every stage can 
 
 - a **task** (paper section III-B): its test metric (``metric``, a per-frame score key), the
   labels of task and metric, and whether lower or higher is better;
+- a **score** over the four task metrics (paper eq. 6-7: TM, MV): Table II's columns are the task
+  metrics, then the scores (:func:`table2_columns`);
 - a **dataset**: its report label and whether the embedded world simulates it;
 - a **model**: its report label, its group (``compact``: the paper's network, trained per
   ``seeds``; ``baseline``: section V-D, per ``baseline_seeds``), the LiDAR channels it reads, its
@@ -32,6 +34,7 @@ __all__ = [
     "task_ids", "dataset_ids", "sim_dataset_ids", "model_ids", "compact_model_ids", "baseline_model_ids",
     "metric_of", "metric_keys", "higher_is_better", "model_label", "table_model_ids", "combination_source",
     "SOURCE_LABEL", "source_label",
+    "ScoreInfo", "SCORES", "table2_columns", "per_frame_columns", "column_label", "lower_is_better",
 ]
 
 
@@ -43,6 +46,16 @@ class TaskInfo:
     metric: str                              # per-frame score key: "mae_de"
     metric_label: str                        # "MAE_DE"
     direction: Literal["lower", "higher"]    # which way the metric is better
+
+
+@dataclass(frozen=True)
+class ScoreInfo:
+    """A score of a run over its four task metrics (paper section III-B, eq. 6-7)."""
+
+    label: str                               # "TM"
+    direction: Literal["lower", "higher"]    # which way the score is better
+    equation: str                            # the paper's equation number: "6"
+    per_frame: bool                          # also a per-frame score (TM is, MV is one number per run)
 
 
 @dataclass(frozen=True)
@@ -67,6 +80,10 @@ TASKS.register("de")(TaskInfo("DE", "mae_de", "MAE_DE", "lower"))
 TASKS.register("ss")(TaskInfo("SS", "iou_ss", "IoU_SS", "higher"))
 TASKS.register("ls")(TaskInfo("LS", "iou_ls", "IoU_LS", "higher"))
 TASKS.register("bevp")(TaskInfo("BEVP", "iou_bevp", "IoU_BEVP", "higher"))
+
+SCORES: Registry[ScoreInfo] = Registry("score", ordered=True)
+SCORES.register("tm")(ScoreInfo("TM", "lower", "6", per_frame=True))
+SCORES.register("mv")(ScoreInfo("MV", "lower", "7", per_frame=False))
 
 DATASETS: Registry[DatasetInfo] = Registry("dataset", ordered=True)
 DATASETS.register("A")(DatasetInfo("Set A", True))
@@ -137,6 +154,31 @@ def higher_is_better(metric: str) -> bool:
         if TASKS[t].metric == metric:
             return TASKS[t].direction == "higher"
     raise KeyError(f"unknown metric {metric!r}; known: {list(metric_keys())}")
+
+
+def table2_columns() -> tuple[str, ...]:
+    """Table II's columns: the task metrics in task order, then the scores over them (TM, MV)."""
+    return metric_keys() + tuple(SCORES.keys())
+
+
+def per_frame_columns() -> tuple[str, ...]:
+    """The columns a run scores per test frame: the task metrics and the per-frame scores (TM)."""
+    return metric_keys() + tuple(k for k in SCORES.keys() if SCORES[k].per_frame)
+
+
+def column_label(column: str) -> str:
+    """The label of a Table II column: a task metric's (``mae_de`` -> ``MAE_DE``) or a score's (``TM``)."""
+    if column in SCORES:
+        return SCORES[column].label
+    for t in TASKS.keys():
+        if TASKS[t].metric == column:
+            return TASKS[t].metric_label
+    raise KeyError(f"unknown Table II column {column!r}; known: {list(table2_columns())}")
+
+
+def lower_is_better(column: str) -> bool:
+    """Direction of a Table II column: a task metric (:func:`higher_is_better`) or a score."""
+    return SCORES[column].direction == "lower" if column in SCORES else not higher_is_better(column)
 
 
 def model_label(model_id: str) -> str:

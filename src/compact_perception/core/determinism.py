@@ -88,11 +88,6 @@ def set_threads(n: int) -> None:
         torch.set_num_threads(int(n))
 
 
-def pins_in_effect() -> dict[str, str]:
-    """The pinned variables whose current value differs from :data:`PINNED_ENV` (empty = pinned)."""
-    return {k: os.environ.get(k, "<unset>") for k, v in PINNED_ENV.items() if os.environ.get(k) != v}
-
-
 def resolve_device(pref: str) -> "torch.device":
     """``train.device``: ``cuda`` (an error without one), ``cpu``, or ``auto`` (CUDA when present)."""
     import torch

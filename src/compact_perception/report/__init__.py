@@ -1,10 +1,12 @@
 """Reports (SPEC 8): Table II / III, paper-vs-reproduced table, claims scorecard, figures, the
 plots' CSV files, the headline metrics and ``reports/index.md``, over every training seed.
 
+- ``schema``      the tables' rows and columns, labels and MGN forms, derived from the registries
 - ``collect``     reading the pipeline's outputs; :func:`~.collect.list_runs`, the one place that
-                  knows where the runs (seeds) of a (dataset, model) live; means and sds over seeds
+                  knows which runs (seeds) of a (dataset, model) exist; means and sds over seeds
 - ``paper``       the paper's published numbers (``paper_numbers.yaml``) and their loader
-- ``tables``      Table II, Table III and the paper-vs-reproduced table (Markdown, LaTeX, CSV)
+- ``tables``      one module per table: ``table2``, ``table3``, ``comparison`` (paper vs
+                  reproduced), ``extra`` (metrics beyond the paper's), and their shared ``formats``
 - ``claims``      the claims scorecard (CLAIMS.md; both MGN forms)
 - ``figures``     loss-weight plots (Fig. 8), validation curves, qualitative grids (Fig. 6/7)
 - ``plots``       every run's validation TM and loss weights as long CSVs for ``dvc plots``

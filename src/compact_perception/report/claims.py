@@ -20,8 +20,6 @@ Per-frame scores come from ``data/eval/<ds>/<model>/seed<k>/per_frame.csv`` of e
 """
 from __future__ import annotations
 
-import csv
-import io as _io
 import logging
 import math
 from dataclasses import dataclass
@@ -31,28 +29,24 @@ from typing import Any, Mapping, Optional, Sequence
 import numpy as np
 import pandas as pd
 
-from ..core import catalog, io
+from ..core import catalog
 from ..stats import (MIN_SEEDS, N_BOOT, BootstrapResult, bootstrap_contrast, paired_bootstrap, seed_bootstrap,
-                     stat_mean, stat_mv, stat_tm, verdict)
-from .collect import (TASK_METRICS, ReportInputError, SeedSpec, align, list_runs, load_row_frames, read_summary,
-                      seeds_for)
+                     stat_mean, verdict)
+from .collect import ReportInputError, SeedSpec, align, list_runs, load_row_frames, read_summary, seeds_for
 from .paper import PaperNumbers
-from .tables import BASELINES, COMPACT, DATASET_LABEL, build_table3
+from .schema import (COMBINATION, COMBINATION_MODELS, COMPACT, DATASET_LABEL, LOWER_IS_BETTER, MGN_FORMS, PAPER_MGN,
+                     ROW_LABEL, WEIGHT_KEYS, column_stat, stat_columns, weight_key)
+from .tables.formats import csv_text, write_files
+from .tables.table3 import Table3Row, build_table3
 
 log = logging.getLogger(__name__)
 
-LABEL: dict[str, str] = {**{m: catalog.model_label(m) for m in catalog.model_ids()}, "combination": "the combination"}
+LABEL: dict[str, str] = {**ROW_LABEL, COMBINATION: "the combination"}
 MODELS: tuple[str, ...] = catalog.model_ids()
-#: The MGN forms tested by every claim about 15L+MGN: model id -> variant label.
-MGN_VARIANTS: dict[str, str] = {m: v for m, v in (("compact_15l_mgn", "Alg. 1"),
-                                                  ("compact_15l_mgn_authors", "authors' code")) if m in LABEL}
-#: The paper's Table II row of 15L+MGN (compared with both forms).
-PAPER_MGN = "compact_15l_mgn"
 #: Equivalence margin of "15L+MGN and 15L have equal MV" (nuScenes): one unit of the paper's
 #: printed precision (3 decimals), the smallest difference Table II could show.
 MV_MARGIN = 1e-3
 NO_DATA = "no data"
-WEIGHT_KEYS: tuple[str, ...] = ("w_de", "w_ss", "w_ls", "w_bevp")
 
 #: (claim id, short statement) in scorecard order.
 CLAIMS: tuple[tuple[str, str], ...] = (
@@ -157,18 +151,9 @@ def _paper_tm(paper: PaperNumbers, ds: str, row: str) -> Optional[float]:
 
 
 # ----------------------------------------------------------------------------- helpers
-def _metric_label(col: str) -> str:
-    """Label of a task metric column (``iou_ls`` -> ``IoU_LS``), from the catalog."""
-    return next(catalog.TASKS[t].metric_label for t in catalog.TASKS if catalog.TASKS[t].metric == col)
-
-
-def _lower_is_better(col: str) -> bool:
-    return col in ("tm", "mv") or (col in catalog.metric_keys() and not catalog.higher_is_better(col))
-
-
 def _row(ds: str, claim: str, statement: str, paper: Optional[float], res: Optional[BootstrapResult],
          margin: Optional[float] = None, note: str = "", model: str = "") -> ClaimRow:
-    variant = MGN_VARIANTS.get(model, "") if claim in MGN_CLAIMS else ""
+    variant = MGN_FORMS.get(model, "") if claim in MGN_CLAIMS else ""
     if res is None:
         return ClaimRow(ds, claim, statement, paper, None, None, None, None, None, NO_DATA, margin, note, model,
                         variant)
@@ -196,13 +181,12 @@ def _pair(ds: str, claim: str, statement: str, frames: dict[str, list[pd.DataFra
           col: str, paper: Optional[float], n_boot: int, margin: Optional[float] = None, *, model: str,
           note: str = "") -> ClaimRow:
     """``better`` beats ``worse`` on ``col`` (a task column, ``tm`` or ``mv``); ``model``: whose claim."""
-    cols = [col] if col in TASK_METRICS else list(TASK_METRICS)
-    groups = _groups(frames, [better, worse], cols)
+    groups = _groups(frames, [better, worse], stat_columns(col))
     if groups is None:
         miss = _missing(frames, [better, worse])
         return _row(ds, claim, statement, paper, None, margin, f"{miss}; {note}" if note else miss, model)
-    stat = stat_mean if col in TASK_METRICS else stat_tm if col == "tm" else stat_mv
-    res = paired_bootstrap(groups[0], groups[1], stat, lower_is_better=_lower_is_better(col), n_boot=n_boot)
+    res = paired_bootstrap(groups[0], groups[1], column_stat(col), lower_is_better=col in LOWER_IS_BETTER,
+                           n_boot=n_boot)
     return _row(ds, claim, statement, paper, res, margin, note, model)
 
 
@@ -225,7 +209,8 @@ def _polarnet_ls(ds: str, frames: dict[str, list[pd.DataFrame]], paper: PaperNum
 def mgn_weight_margins(root: Path, ds: str, model: str = "compact_15l_mgn",
                        seeds: Optional[Sequence[int]] = None) -> list[float]:
     """Per MGN run (seed of ``seeds``, see :func:`..collect.list_runs`): ``w_de - max(w_ss,
-    w_ls, w_bevp)`` of the final weights (errors name the summary file)."""
+    w_ls, w_bevp)`` of the final weights (every task's, :data:`~.schema.WEIGHT_KEYS`; errors name
+    the summary file)."""
     out = []
     for run in list_runs(root, ds, model, seeds):
         summ = read_summary(run.run_dir)
@@ -241,7 +226,8 @@ def mgn_weight_margins(root: Path, ds: str, model: str = "compact_15l_mgn",
             raise ReportInputError(f"{path}: final_weights has a non-numeric value: {w!r}") from None
         if not all(math.isfinite(v) for v in vals.values()):
             raise ReportInputError(f"{path}: final_weights has a non-finite value: {w!r}")
-        out.append(vals["w_de"] - max(vals[k] for k in WEIGHT_KEYS[1:]))
+        de = weight_key("de")
+        out.append(vals[de] - max(v for k, v in vals.items() if k != de))
     return out
 
 
@@ -263,7 +249,7 @@ def _mgn_weights(root: Path, ds: str, model: str, n_boot: int, seeds: Optional[S
 def claims_for_dataset(root: Path, ds: str, paper: PaperNumbers, frames: Optional[dict[str, list[pd.DataFrame]]] = None,
                        *, n_boot: int = N_BOOT, seeds: SeedSpec = None) -> list[ClaimRow]:
     """Every claim of :data:`CLAIMS` on dataset ``ds`` (in that order; the claims about 15L+MGN
-    once per MGN form of :data:`MGN_VARIANTS`). ``seeds``: the seed lists (see
+    once per MGN form of :data:`~.schema.MGN_FORMS`). ``seeds``: the seed lists (see
     :func:`..collect.list_runs`); ``frames``: per-frame scores already loaded with them."""
     frames = load_row_frames(root, ds, MODELS, seeds) if frames is None else frames
     st = dict(CLAIMS)
@@ -280,11 +266,11 @@ def claims_for_dataset(root: Path, ds: str, paper: PaperNumbers, frames: Optiona
         for claim, col in (("lidar-de-ss/de", "mae_de"), ("lidar-de-ss/ss", "iou_ss")):
             a, b = _pv(paper, ds, "compact_15l", col), _pv(paper, ds, "compact_1l", col)
             rows.append(_pair(ds, claim, st[claim], frames, "compact_15l", "compact_1l", col,
-                              _pdiff(b, a) if _lower_is_better(col) else _pdiff(a, b), n_boot, model="compact_15l"))
+                              _pdiff(b, a) if col in LOWER_IS_BETTER else _pdiff(a, b), n_boot, model="compact_15l"))
     rows.append(_pair(ds, "lidar-bevp", st["lidar-bevp"], frames, "compact_15l", "compact_1l", "iou_bevp",
                       _pdiff(_pv(paper, ds, "compact_15l", "iou_bevp"), _pv(paper, ds, "compact_1l", "iou_bevp")),
                       n_boot, margin=BEVP_MARGIN, model="compact_15l"))
-    for mgn in MGN_VARIANTS:
+    for mgn in MGN_FORMS:
         lab = LABEL[mgn]
         rows.append(_pair(ds, "mgn-tm", f"{lab} has a lower TM than 15L", frames, mgn, "compact_15l", "tm",
                           _pdiff(_paper_tm(paper, ds, "compact_15l"), _paper_tm(paper, ds, PAPER_MGN)), n_boot,
@@ -296,21 +282,21 @@ def claims_for_dataset(root: Path, ds: str, paper: PaperNumbers, frames: Optiona
         for claim, winner, col in TRADEOFF:
             better, worse = (mgn, "compact_15l") if winner == "mgn" else ("compact_15l", mgn)
             pb, pw = (_pv(paper, ds, PAPER_MGN if m == mgn else m, col) for m in (better, worse))
-            low = _lower_is_better(col)
+            low = col in LOWER_IS_BETTER
             text = (f"{LABEL[better] if winner == 'mgn' else '15L'} has a {'lower' if low else 'higher'} "
-                    f"{_metric_label(col)} than {'15L' if winner == 'mgn' else LABEL[worse]}")
+                    f"{catalog.column_label(col)} than {'15L' if winner == 'mgn' else LABEL[worse]}")
             rows.append(_pair(ds, claim, text, frames, better, worse, col,
                               _pdiff(pw, pb) if low else _pdiff(pb, pw), n_boot, model=mgn,
                               note=paper_note))
         if ds == "C":  # the paper: the combination wins on C (0.976 vs 0.999)
             rows.append(_pair(ds, "vs-combination", f"the combination has a lower TM than {lab} (paper, set C)",
-                              frames, "combination", mgn, "tm",
-                              _pdiff(_paper_tm(paper, ds, PAPER_MGN), _paper_tm(paper, ds, "combination")), n_boot,
+                              frames, COMBINATION, mgn, "tm",
+                              _pdiff(_paper_tm(paper, ds, PAPER_MGN), _paper_tm(paper, ds, COMBINATION)), n_boot,
                               model=mgn, note=paper_note))
         else:
             rows.append(_pair(ds, "vs-combination", f"{lab} has a lower TM than the combination", frames,
-                              mgn, "combination", "tm",
-                              _pdiff(_paper_tm(paper, ds, "combination"), _paper_tm(paper, ds, PAPER_MGN)), n_boot,
+                              mgn, COMBINATION, "tm",
+                              _pdiff(_paper_tm(paper, ds, COMBINATION), _paper_tm(paper, ds, PAPER_MGN)), n_boot,
                               model=mgn, note=paper_note))
         rows.append(_mgn_weights(root, ds, mgn, n_boot, seeds_for(seeds, mgn)))
     rows.append(_polarnet_ls(ds, frames, paper, n_boot))
@@ -319,32 +305,34 @@ def claims_for_dataset(root: Path, ds: str, paper: PaperNumbers, frames: Optiona
 
 def build_claims(root: Path, datasets: Sequence[str], paper: PaperNumbers, *,
                  frames: Optional[dict[str, dict[str, list[pd.DataFrame]]]] = None, n_boot: int = N_BOOT,
-                 seeds: SeedSpec = None, efficiency: Optional[Mapping[str, Any]] = None) -> list[ClaimRow]:
+                 seeds: SeedSpec = None, efficiency: Optional[Mapping[str, Any]] = None,
+                 table3: Optional[dict[str, list[Table3Row]]] = None) -> list[ClaimRow]:
     """The scorecard, sorted by claim (order of :data:`CLAIMS`), then dataset (order given), then
-    MGN form (order of :data:`MGN_VARIANTS`). ``efficiency``: ``results/benchmark/efficiency.json``
-    for the Table III claims (left out when None)."""
+    MGN form (order of :data:`~.schema.MGN_FORMS`). ``efficiency``: ``results/benchmark/efficiency.json``
+    for the Table III claims (left out when None); ``table3``: its Table III if already built."""
     rows: list[ClaimRow] = []
     for ds in datasets:
         rows += claims_for_dataset(root, ds, paper, (frames or {}).get(ds), n_boot=n_boot, seeds=seeds)
     if efficiency is not None:
-        rows += [r for r in efficiency_claims(efficiency, paper) if r.dataset in datasets]
+        rows += [r for r in efficiency_claims(efficiency, paper, table3=table3) if r.dataset in datasets]
     order = {c: i for i, (c, _) in enumerate(CLAIMS)}
     ds_order = {d: i for i, d in enumerate(datasets)}
-    v_order = {m: i for i, m in enumerate(MGN_VARIANTS)}
+    v_order = {m: i for i, m in enumerate(MGN_FORMS)}
     return sorted(rows, key=lambda r: (order[r.claim], ds_order[r.dataset], v_order.get(r.model, -1)))
 
 
-def efficiency_claims(efficiency: Mapping[str, Any], paper: PaperNumbers, model: str = PAPER_MGN) -> list[ClaimRow]:
-    """The ``efficiency/*`` rows (Table III) per benchmarked dataset, oriented so that positive
-    means 15L+MGN is the more efficient: combination - 15L+MGN for parameters, size and memory,
-    15L+MGN - combination for FPS."""
+def efficiency_claims(efficiency: Mapping[str, Any], paper: PaperNumbers, model: str = PAPER_MGN, *,
+                      table3: Optional[dict[str, list[Table3Row]]] = None) -> list[ClaimRow]:
+    """The ``efficiency/*`` rows (Table III, ``table3`` or built from ``efficiency``) per
+    benchmarked dataset, oriented so that positive means 15L+MGN is the more efficient:
+    combination - 15L+MGN for parameters, size and memory, 15L+MGN - combination for FPS."""
     st = dict(CLAIMS)
     rows: list[ClaimRow] = []
-    for ds, t3 in build_table3(dict(efficiency)).items():
+    for ds, t3 in (build_table3(dict(efficiency)) if table3 is None else table3).items():
         by = {r.row_id: r for r in t3}
-        mgn, comb = by.get(model), by.get("combination")
+        mgn, comb = by.get(model), by.get(COMBINATION)
         raw = efficiency["models"][ds]
-        pm, pc = paper.table3_row(ds, PAPER_MGN), paper.table3_row(ds, "combination")
+        pm, pc = paper.table3_row(ds, PAPER_MGN), paper.table3_row(ds, COMBINATION)
         for claim, field, paper_field in (("efficiency/params", "total_params", "total_params"),
                                           ("efficiency/size", "total_size_mb", "total_size_mb"),
                                           ("efficiency/memory", "peak_memory_mb", "gpu_memory_mb"),
@@ -356,12 +344,13 @@ def efficiency_claims(efficiency: Mapping[str, Any], paper: PaperNumbers, model:
             sign = 1.0 if field == "fps" else -1.0
             measured = sign * (float(getattr(mgn, field)) - float(getattr(comb, field)))
             lo = hi = measured
-            spread = all(k in raw[m] for m in (model, *BASELINES) for k in ("latency_ms_min", "latency_ms_p90"))
+            spread = all(k in raw[m] for m in (model, *COMBINATION_MODELS)
+                         for k in ("latency_ms_min", "latency_ms_p90"))
             if field == "fps" and not spread:  # a benchmark file without the timed runs' spread
                 lo = hi = math.nan
             elif field == "fps":  # range from the fastest and the 90th-percentile timed runs
-                comb_min = sum(float(raw[b]["latency_ms_min"]) for b in BASELINES)
-                comb_p90 = sum(float(raw[b]["latency_ms_p90"]) for b in BASELINES)
+                comb_min = sum(float(raw[b]["latency_ms_min"]) for b in COMBINATION_MODELS)
+                comb_p90 = sum(float(raw[b]["latency_ms_p90"]) for b in COMBINATION_MODELS)
                 lo = 1e3 / float(raw[model]["latency_ms_p90"]) - 1e3 / comb_min
                 hi = 1e3 / float(raw[model]["latency_ms_min"]) - 1e3 / comb_p90
             pa, pb = (getattr(pm, paper_field, None) if pm else None), (getattr(pc, paper_field, None) if pc else None)
@@ -419,15 +408,9 @@ def claims_markdown(rows: list[ClaimRow]) -> str:
 def claims_csv(rows: list[ClaimRow]) -> str:
     header = ["dataset", "claim", "model", "variant", "statement", "paper", "measured", "ci_low", "ci_high", "margin",
               "n_seeds", "seeds_per_model", "n_test_frames", "verdict", "note"]
-    buf = _io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(header)
-    for r in rows:
-        vals: list[Any] = [r.dataset, r.claim, r.model, r.variant, r.statement, r.paper, r.measured, r.ci_low,
-                           r.ci_high, r.margin, r.n_seeds, ";".join(map(str, r.seeds_per_model)), r.n_test_frames,
-                           r.verdict, r.note]
-        w.writerow(["" if v is None else (repr(v) if isinstance(v, float) else v) for v in vals])
-    return buf.getvalue()
+    return csv_text(header, [[r.dataset, r.claim, r.model, r.variant, r.statement, r.paper, r.measured, r.ci_low,
+                              r.ci_high, r.margin, r.n_seeds, ";".join(map(str, r.seeds_per_model)), r.n_test_frames,
+                              r.verdict, r.note] for r in rows])
 
 
 def write_claims(root: Path, datasets: Sequence[str], paper: PaperNumbers, out_dir: Path, *,
@@ -435,8 +418,10 @@ def write_claims(root: Path, datasets: Sequence[str], paper: PaperNumbers, out_d
                  seeds: SeedSpec = None) -> list[Path]:
     """Write ``claims.md`` and ``claims.csv`` under ``out_dir``; returns the paths."""
     rows = build_claims(root, datasets, paper, frames=frames, n_boot=n_boot, seeds=seeds)
-    out = {Path(out_dir) / "claims.md": claims_markdown(rows), Path(out_dir) / "claims.csv": claims_csv(rows)}
-    for path, text in out.items():
-        io.write_text(path, text)
     log.info("claims: %s", {v: sum(r.verdict == v for r in rows) for v in sorted({r.verdict for r in rows})})
-    return list(out)
+    return write_files(out_dir, claims_files(rows))
+
+
+def claims_files(rows: list[ClaimRow]) -> dict[str, str]:
+    """The scorecard's ``claims.md`` and ``claims.csv`` (file name -> text)."""
+    return {"claims.md": claims_markdown(rows), "claims.csv": claims_csv(rows)}

@@ -15,13 +15,13 @@ Inputs (ARCHITECTURE.md / SPEC 2), per run (one training seed ``k`` of a (datase
 - ``results/benchmark/efficiency.json`` (written by ``pipeline/benchmark.py``);
 - ``data/cache/<ds>/meta.json`` (frame counts, resolution, source).
 
-Runs: :func:`list_runs` is the one place of the report that knows where the runs (seeds) of a
-(dataset, model) live (the paths themselves come from :func:`compact_perception.core.layout.run_paths`).
-Given the seed list of params.yaml (``seeds`` for the compact models, ``baseline_seeds`` for the
-baselines) it lists exactly those seeds' runs that exist: a stale ``seed<k>`` folder of a seed no
-longer in the list is ignored. Without a seed list (``None``) it lists every ``seed<k>`` folder,
-or the single run of the older layout (``runs/<ds>/<model>`` with ``results/<ds>/<model>`` and
-``data/eval/<ds>/<model>``). Every loader below takes the seeds through it.
+Runs: :func:`list_runs` is the one place of the report that knows which runs (seeds) of a
+(dataset, model) exist; each is a :class:`compact_perception.core.layout.RunPaths`
+(:func:`~compact_perception.core.layout.run_paths`, where every stage writes them). Given the seed
+list of params.yaml (``seeds`` for the compact models, ``baseline_seeds`` for the baselines) it
+lists exactly those seeds' runs that exist: a stale ``seed<k>`` folder of a seed no longer in the
+list is ignored. Without a seed list (``None``) it lists every ``seed<k>`` folder. Every loader
+below takes the seeds through it.
 
 Over seeds (:func:`aggregate_runs`): each metric's run-level value (a run's test-set mean; TM and
 MV of the run's four test-set means, eq. 6-7 via :func:`compact_perception.metrics.scores_from_means`)
@@ -41,8 +41,10 @@ from typing import Any, Mapping, Optional, Sequence
 import numpy as np
 import pandas as pd
 
-from ..core.layout import run_paths
+from ..core import catalog
+from ..core.layout import RunPaths, run_paths
 from ..metrics import scores_from_means
+from .schema import COMBINATION, COMBINATION_SOURCE, PER_FRAME_COLUMNS, TABLE2_COLUMNS, TASK_COLUMNS
 
 log = logging.getLogger(__name__)
 
@@ -50,20 +52,8 @@ log = logging.getLogger(__name__)
 #: for every model, or ``None`` (every ``seed<k>`` folder found).
 SeedSpec = Optional[Mapping[str, Sequence[int]] | Sequence[int]]
 
-TASK_METRICS: tuple[str, ...] = ("mae_de", "iou_ss", "iou_ls", "iou_bevp")
-SCORE_KEYS: tuple[str, ...] = TASK_METRICS + ("tm", "mv")
 #: Blocks of metrics.json beyond the paper's (written by ``compact_perception.evaluate``).
 EXTRA_KEYS: tuple[str, ...] = ("class_iou", "depth")
-#: The model each task of the combination of baselines comes from (paper section V-D, SPEC 6).
-COMBINATION_SOURCE: dict[str, str] = {
-    "mae_de": "gradnorm_segnet", "iou_ss": "gradnorm_segnet", "iou_ls": "polarnet", "iou_bevp": "chen_bev",
-}
-#: Human-readable data sources (as ``compact_perception.evaluate`` writes them).
-SOURCE_LABEL: dict[str, str] = {
-    "sim": "simulated (embedded world)",
-    "authors": "authors' CARLA dataset",
-    "nuscenes-lidarseg": "nuScenes-lidarseg",
-}
 
 
 class ReportInputError(ValueError):
@@ -132,7 +122,7 @@ def read_metrics(path: Path, dataset: str = "", model: str = "") -> ModelResult:
     """Parse and validate one ``metrics.json``."""
     data = read_json(path)
     scores: dict[str, Cell] = {}
-    for key in SCORE_KEYS:
+    for key in TABLE2_COLUMNS:
         if key not in data:
             continue
         v = data[key]
@@ -146,8 +136,8 @@ def read_metrics(path: Path, dataset: str = "", model: str = "") -> ModelResult:
             scores[key] = Cell(_num(v["mean"], f"{where}.mean"), None if var is None else _num(var, f"{where}.var"))
         else:
             scores[key] = Cell(_num(v, where))
-    if not any(k in scores for k in TASK_METRICS):
-        raise ReportInputError(f"{path}: none of the task metrics {list(TASK_METRICS)} present")
+    if not any(k in scores for k in TASK_COLUMNS):
+        raise ReportInputError(f"{path}: none of the task metrics {list(TASK_COLUMNS)} present")
     extra: dict[str, Any] = {}
     for key in EXTRA_KEYS:
         if key in data:
@@ -188,18 +178,19 @@ def with_derived(result: ModelResult, where: str = "") -> ModelResult:
     """``result`` with TM and MV recomputed from its four task means (eq. 6-7, the project's
     one implementation); a stored value that differs (an older file holding the mean of a
     per-frame MV) is logged and replaced. Models without the four tasks keep what they have."""
-    means = {c: cell.mean for c, cell in result.scores.items() if c in TASK_METRICS}
+    means = {c: cell.mean for c, cell in result.scores.items() if c in TASK_COLUMNS}
     derived = scores_from_means(means)
     if not derived:
         return result
     scores = dict(result.scores)
-    for c in ("tm", "mv"):
-        old = scores.get(c)
+    for c in catalog.SCORES.keys():
+        info, old = catalog.SCORES[c], scores.get(c)
         if old is not None and abs(old.mean - derived[c]) > 1e-9:
             log.warning("%s: %s %.6g is not eq. %s of the four means (%.6g); the report uses the latter "
                         "(re-run evaluate)", where or f"{result.dataset}/{result.model}", c, old.mean,
-                        "6" if c == "tm" else "7", derived[c])
-        scores[c] = Cell(derived[c], old.var if (c == "tm" and old is not None) else None)
+                        info.equation, derived[c])
+        # a per-frame score keeps its variance over test frames; MV is one number per run
+        scores[c] = Cell(derived[c], old.var if (info.per_frame and old is not None) else None)
     return ModelResult(result.dataset, result.model, scores, result.n_frames, result.source, result.device,
                        result.extra, result.seed, list(result.runs))
 
@@ -212,7 +203,7 @@ def aggregate_runs(runs: Sequence[ModelResult]) -> ModelResult:
         raise ValueError("aggregate_runs: no runs")
     runs = [with_derived(r, str(r.seed)) for r in runs]
     first = runs[0]
-    keys = [k for k in SCORE_KEYS if any(k in r.scores for r in runs)]
+    keys = [k for k in TABLE2_COLUMNS if any(k in r.scores for r in runs)]
     scores: dict[str, Cell] = {}
     for k in keys:
         have = [r.scores[k] for r in runs if k in r.scores]
@@ -330,7 +321,7 @@ def collect_scale(root: Path, datasets: Sequence[str], models: Sequence[str],
             sc.resolution = meta.get("resolution")
             sc.has_dvs = meta.get("has_dvs")
             src = meta.get("source")
-            sc.source = SOURCE_LABEL.get(src, src) if src else None
+            sc.source = catalog.source_label(src) if src else None
         for m in models:
             facts = []
             for run in list_runs(root, ds, m, seeds_for(seeds, m)):
@@ -356,61 +347,33 @@ _SEED_DIR = re.compile(r"^seed(\d+)$")
 _STALE_LOGGED: set[tuple] = set()   # stale seed folders already logged (once per run of the report)
 
 
-@dataclass(frozen=True)
-class RunRef:
-    """Where one run (one training seed) of a (dataset, model) keeps its outputs."""
-
-    dataset: str
-    model: str
-    seed: Optional[int]            # None: the single run of the older (seedless) layout
-    run_dir: Path                  # runs/<ds>/<model>[/seed<k>]: summary.json, live/
-    metrics_path: Path             # results/<ds>/<model>[/seed<k>]/metrics.json
-    eval_dir: Path                 # data/eval/<ds>/<model>[/seed<k>]: per_frame.csv, npz files
-
-
-def list_runs(root: Path, dataset: str, model: str, seeds: Optional[Sequence[int]] = None) -> list[RunRef]:
+def list_runs(root: Path, dataset: str, model: str, seeds: Optional[Sequence[int]] = None) -> list[RunPaths]:
     """The runs of (``dataset``, ``model``) under ``root``, sorted by seed.
 
     ``seeds`` given (params ``seeds`` / ``baseline_seeds``): the run of each listed seed ``k``
     whose ``runs/…/seed<k>``, ``results/…/seed<k>/metrics.json`` or ``data/eval/…/seed<k>``
     exists; ``seed<k>`` folders of other seeds are ignored (stale, logged). ``seeds`` ``None``:
-    one run per ``seed<k>`` folder found (under runs/, results/ or data/eval/), else the single run
-    ``runs/<ds>/<model>`` of the older layout (listed whenever its run, metrics or per-frame
-    folder exists)."""
+    one run per ``seed<k>`` folder found (under runs/, results/ or data/eval/)."""
     root = Path(root)
-    base_run, base_res, base_eval = (root / "runs" / dataset / model, root / "results" / dataset / model,
-                                     root / "data" / "eval" / dataset / model)
-    found = sorted({int(m.group(1)) for base in (base_run, base_res, base_eval)
-                    for p in (base.iterdir() if base.is_dir() else [])
+    probe = run_paths(dataset, model, 0, root)           # its parents hold every seed<k> folder
+    bases = (probe.run_dir.parent, probe.metrics_path.parent.parent, probe.eval_dir.parent)
+    found = sorted({int(m.group(1)) for base in bases for p in (base.iterdir() if base.is_dir() else [])
                     if p.is_dir() and (m := _SEED_DIR.match(p.name))})
-    if seeds is not None:
-        wanted = sorted({int(k) for k in seeds})
-        stale = [k for k in found if k not in wanted]
-        if stale and (str(root), dataset, model, tuple(stale)) not in _STALE_LOGGED:
-            _STALE_LOGGED.add((str(root), dataset, model, tuple(stale)))
-            log.info("%s/%s: ignoring seed folder(s) %s (not in the seed list %s)", dataset, model,
-                     [f"seed{k}" for k in stale], wanted)
-        out = []
-        for k in wanted:
-            p = run_paths(dataset, model, k, root)
-            if p.run_dir.is_dir() or p.metrics_path.is_file() or p.eval_dir.is_dir():
-                out.append(RunRef(dataset, model, k, p.run_dir, p.metrics_path, p.eval_dir))
-        return out
-    if found:
-        out = []
-        for k in found:
-            p = run_paths(dataset, model, k, root)
-            out.append(RunRef(dataset, model, k, p.run_dir, p.metrics_path, p.eval_dir))
-        return out
-    if base_run.is_dir() or (base_res / "metrics.json").is_file() or base_eval.is_dir():
-        return [RunRef(dataset, model, None, base_run, base_res / "metrics.json", base_eval)]
-    return []
+    if seeds is None:
+        return [run_paths(dataset, model, k, root) for k in found]
+    wanted = sorted({int(k) for k in seeds})
+    stale = [k for k in found if k not in wanted]
+    if stale and (str(root), dataset, model, tuple(stale)) not in _STALE_LOGGED:
+        _STALE_LOGGED.add((str(root), dataset, model, tuple(stale)))
+        log.info("%s/%s: ignoring seed folder(s) %s (not in the seed list %s)", dataset, model,
+                 [f"seed{k}" for k in stale], wanted)
+    runs = [run_paths(dataset, model, k, root) for k in wanted]
+    return [p for p in runs if p.run_dir.is_dir() or p.metrics_path.is_file() or p.eval_dir.is_dir()]
 
 
-def run_name(run: RunRef) -> str:
-    """``<ds>/<model>/seed<k>`` (``<ds>/<model>`` for the single run of the older layout): the
-    ``run`` field of the plots' CSV files."""
-    return f"{run.dataset}/{run.model}" + ("" if run.seed is None else f"/seed{run.seed}")
+def run_name(run: RunPaths) -> str:
+    """``<ds>/<model>/seed<k>``: the ``run`` field of the plots' CSV files."""
+    return f"{run.dataset}/{run.model}/seed{run.seed}"
 
 
 def read_per_frame(path: Path, columns: Sequence[str] = ()) -> pd.DataFrame:
@@ -427,7 +390,7 @@ def read_per_frame(path: Path, columns: Sequence[str] = ()) -> pd.DataFrame:
         raise ReportInputError(f"{path}: missing column(s) {missing}")
     if df["frame_id"].duplicated().any():
         raise ReportInputError(f"{path}: duplicate frame_id {df.loc[df['frame_id'].duplicated(), 'frame_id'].iloc[0]!r}")
-    for c in list(columns) + [c for c in TASK_METRICS + ("tm",) if c in df.columns and c not in columns]:
+    for c in list(columns) + [c for c in PER_FRAME_COLUMNS if c in df.columns and c not in columns]:
         vals = pd.to_numeric(df[c], errors="coerce")
         if not np.isfinite(vals.to_numpy(dtype=float)).all():
             raise ReportInputError(f"{path}: column {c!r} has a missing or non-numeric value")
@@ -466,10 +429,11 @@ def pair_by_seed(runs: Sequence[Sequence[Any]], seed_of: Any) -> list[tuple[Any,
 
 
 def combination_frames(frames: dict[str, list[pd.DataFrame]]) -> list[pd.DataFrame]:
-    """Per-frame scores of the combination of baselines (SPEC 6): ``mae_de``, ``iou_ss`` of
-    GradNorm, ``iou_ls`` of PolarNet, ``iou_bevp`` of Chen et al., joined on ``frame_id``
-    (frames all three scored). One combination run per training seed the three baselines all
-    have (:func:`pair_by_seed`); empty if a baseline has no per-frame scores."""
+    """Per-frame scores of the combination of baselines (SPEC 6): each task metric of the model
+    that gives it (:data:`~.schema.COMBINATION_SOURCE`: ``mae_de``, ``iou_ss`` of GradNorm,
+    ``iou_ls`` of PolarNet, ``iou_bevp`` of Chen et al.), joined on ``frame_id`` (frames all of
+    them scored). One combination run per training seed the source models all have
+    (:func:`pair_by_seed`); empty if one has no per-frame scores."""
     sources = sorted(set(COMBINATION_SOURCE.values()))
     if not all(frames.get(m) for m in sources):
         return []
@@ -508,5 +472,5 @@ def load_row_frames(root: Path, dataset: str, models: Sequence[str], seeds: Seed
     frames = {m: f for m, f in frames.items() if f}
     comb = combination_frames(frames)
     if comb:
-        frames["combination"] = comb
+        frames[COMBINATION] = comb
     return frames

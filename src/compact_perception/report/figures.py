@@ -25,15 +25,11 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 from matplotlib.ticker import MaxNLocator  # noqa: E402
 
-from ..core import catalog  # noqa: E402
 from .collect import read_summary, read_tsv_metric  # noqa: E402
 from .qualitative import plot_qualitative, save_figure  # noqa: E402,F401  (plot_qualitative: re-export)
+from .schema import ROW_LABEL, WEIGHT_KEYS, WEIGHT_LABEL, WEIGHT_PREFIX, weight_key, weight_task  # noqa: E402
 
 log = logging.getLogger(__name__)
-
-WEIGHT_NAMES: tuple[str, ...] = ("w_de", "w_ss", "w_ls", "w_bevp")
-WEIGHT_LABEL: dict[str, str] = {"w_de": "DE", "w_ss": "SS", "w_ls": "LS", "w_bevp": "BEVP"}
-MODEL_LABEL: dict[str, str] = {m: catalog.model_label(m) for m in catalog.model_ids()}
 
 
 # ----------------------------------------------------------------------------- training logs
@@ -52,13 +48,13 @@ def read_weight_curves(run_dir: Path) -> dict[str, pd.Series]:
     """Every loss weight a run logged (dvclive ``w_<task>.tsv``), task id -> weight per epoch;
     the paper's four tasks first, in order."""
     mdir = Path(run_dir) / "live" / "plots" / "metrics"
-    names = sorted(p.stem for p in mdir.glob("w_*.tsv")) if mdir.is_dir() else []
-    names = [n for n in WEIGHT_NAMES if n in names] + [n for n in names if n not in WEIGHT_NAMES]
+    names = sorted(p.stem for p in mdir.glob(f"{WEIGHT_PREFIX}*.tsv")) if mdir.is_dir() else []
+    names = [n for n in WEIGHT_KEYS if n in names] + [n for n in names if n not in WEIGHT_KEYS]
     out = {}
     for n in names:
         s = read_tsv_metric(Path(run_dir) / "live", n)
         if s is not None and len(s):
-            out[n[2:]] = s
+            out[weight_task(n)] = s
     return out
 
 
@@ -98,7 +94,7 @@ def plot_loss_weights(runs: Union[RunDirs, Mapping[str, RunDirs]], out_png: Path
             summ = read_summary(d) or {}
             fw = summ.get("final_weights") or {}
             for t, s in c.items():
-                finals[t].append(float(fw.get(f"w_{t}", s.iloc[-1])))
+                finals[t].append(float(fw.get(weight_key(t), s.iloc[-1])))
             best = summ.get("best_epoch")
             if isinstance(best, int) and best >= 0:
                 ax.axvline(best, color="black", linestyle="--", linewidth=0.8, alpha=0.6)
@@ -108,7 +104,7 @@ def plot_loss_weights(runs: Union[RunDirs, Mapping[str, RunDirs]], out_png: Path
             for s in series if len(series) > 1 else []:
                 ax.plot(s.index, s.values, color=colour, linewidth=0.7, alpha=0.35)
             m = _mean_curve(series)
-            label = f"{WEIGHT_LABEL.get('w_' + t, t.upper())}: {np.mean(finals[t]):.3f}"
+            label = f"{WEIGHT_LABEL.get(weight_key(t), t.upper())}: {np.mean(finals[t]):.3f}"
             ax.plot(m.index, m.values, color=colour, marker="o", markersize=3, linewidth=1.8, label=label)
         ax.plot([], [], color="black", linestyle="--", linewidth=0.8, label="best epoch (per seed)")
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
@@ -139,7 +135,7 @@ def plot_training_curves(runs: Mapping[str, RunDirs], out_png: Path, title: str 
         m = _mean_curve([s for _, s in curves])
         n = len(curves)
         ax.plot(m.index, m.values, color=colour, linewidth=1.6,
-                label=MODEL_LABEL.get(model, model) + (f" (mean of {n})" if n > 1 else ""))
+                label=ROW_LABEL.get(model, model) + (f" (mean of {n})" if n > 1 else ""))
         for d, s in curves:
             if n > 1:
                 ax.plot(s.index, s.values, color=colour, linewidth=0.6, alpha=0.35)

@@ -16,6 +16,11 @@
 into a staging directory and moves each into place only once everything is built: a failed
 report leaves the previous files untouched. Other stages own the rest of ``reports/figures/``
 (the world's Fig. 1-like figures and the LiDAR preprocessing figures); the index links them.
+
+The steps, each its own function: :func:`read_inputs` (every input, read once),
+:func:`write_tables` (each table built once, its Markdown kept for the index), the plots' CSV
+files, the study's report, :func:`headline_metrics`, :func:`write_figures`, then
+:func:`index_markdown` from the :class:`ReportParts` they return.
 """
 from __future__ import annotations
 
@@ -23,21 +28,26 @@ import logging
 import os
 import shutil
 import tempfile
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional, Sequence
 
 from ..core import io
 from ..core.catalog import dataset_ids, model_ids
-from .claims import build_claims, claims_csv, claims_markdown, verdict_counts
+from ..core.layout import RunPaths
+from .claims import build_claims, claims_files, verdict_counts
 from .collect import (DatasetScale, ModelResult, SeedSpec, collect_scale, list_runs, load_npz, load_results,
                       load_row_frames, read_json, seeds_for)
-from .figures import MODEL_LABEL, plot_loss_weights, plot_qualitative, plot_training_curves
+from .figures import plot_loss_weights, plot_qualitative, plot_training_curves
 from .paper import PaperNumbers, load_paper_numbers
 from .plots import write_plot_data
+from .schema import DATASET_LABEL, MGN_FORMS, ROW_LABEL, ROW_ORDER
 from .study import StudyOutputs, study_run_dirs, write_study_report
-from .tables import (DATASET_LABEL, MGN_MODELS, ROW_ORDER, build_extra_rows, build_table2, build_table3,
-                     extra_markdown, scale_lines, table2_csv, table2_latex, table2_markdown, table3_markdown,
-                     write_comparison, write_extra_metrics, write_table, write_table3)
+from .tables.comparison import SPLITS, comparison_files, scale_lines
+from .tables.extra import build_extra_rows, extra_files
+from .tables.formats import write_files
+from .tables.table2 import RowFrames, build_table2, table2_files
+from .tables.table3 import build_table3, table3_files
 
 log = logging.getLogger(__name__)
 
@@ -46,17 +56,69 @@ log = logging.getLogger(__name__)
 HEADLINE_MODEL = "compact_15l_mgn_authors"
 HEADLINE_KEY = "tm_mgn_authors"
 HEADLINE_DECIMALS = 4
+#: Figures of the index per dataset: key -> title (``world`` and ``lidar`` come from other stages).
+FIGURE_TITLES: dict[str, str] = {
+    "world": "One frame of the simulated world, all sensors and ground truths (Fig. 1)",
+    "lidar": "LiDAR preprocessing: 14 height layers and the flattened layer (Fig. 5)",
+    "loss_weights": "Loss weights of 15L+MGN per epoch, both MGN forms, mean over seeds (Fig. 8)",
+    "curves": "Validation TM per epoch, mean over seeds",
+    "qualitative": "Qualitative results, one test frame, each model's first seed (Fig. 6/7)",
+}
+#: The figures other stages write under ``reports/figures/`` (key -> file name of dataset ``ds``).
+STAGE_FIGURES: dict[str, str] = {"world": "world_{ds}.png", "lidar": "lidar_preprocessing_{ds}.png"}
 
 
-def find_inputs(root: Path, dataset: str, models: Sequence[str], seeds: SeedSpec = None) -> Optional[Path]:
-    """The first ``inputs.npz`` of a run (model order, then seed) that exists (every evaluation
-    writes it beside its per-frame scores)."""
-    for m in models:
-        for run in list_runs(root, dataset, m, seeds_for(seeds, m)):
-            p = run.eval_dir / "inputs.npz"
-            if p.is_file():
-                return p
-    return None
+# ----------------------------------------------------------------------------- what the report is made of
+@dataclass
+class ReportInputs:
+    """Every input of the report, read once (:func:`read_inputs`)."""
+
+    root: Path
+    datasets: list[str]
+    models: list[str]
+    seeds: SeedSpec
+    paper: PaperNumbers
+    results: dict[str, dict[str, ModelResult]]       # dataset -> model -> its runs over the seeds
+    frames: dict[str, RowFrames]                     # dataset -> row id -> per-frame scores per run
+    efficiency: Optional[dict[str, Any]]             # results/benchmark/efficiency.json (None: not run)
+    scales: dict[str, DatasetScale]
+
+
+@dataclass
+class ReportParts:
+    """The parts of ``reports/index.md`` (:func:`index_markdown`): what the tables, the study and
+    the figures wrote, as Markdown and paths relative to the index. ``table3_md`` is ``None``
+    without a benchmark; ``claims_md``, ``extra_md``, ``headline`` and ``study`` are left out
+    where ``None``."""
+
+    scale_name: str
+    results: dict[str, dict[str, ModelResult]]
+    scales: dict[str, DatasetScale]
+    scale_text: list[str]
+    table2_md: str
+    table3_md: Optional[str] = None
+    efficiency: Optional[dict[str, Any]] = None
+    claims_md: Optional[str] = None
+    extra_md: Optional[str] = None
+    headline: Optional[dict[str, Any]] = None
+    study: Optional[StudyOutputs] = None
+    study_figures: dict[str, str] = field(default_factory=dict)
+    figures: dict[str, dict[str, str]] = field(default_factory=dict)
+
+
+def read_inputs(root: Path, datasets: Sequence[str], models: Sequence[str], seeds: SeedSpec,
+                paper: PaperNumbers) -> ReportInputs:
+    """Every run's metrics and per-frame scores of the seeds ``seeds``, the benchmark's file and
+    each dataset's scale (:mod:`.collect`)."""
+    root = Path(root)
+    results = load_results(root, list(datasets), list(models), seeds)
+    eff_path = root / "results" / "benchmark" / "efficiency.json"
+    efficiency = read_json(eff_path) if eff_path.is_file() else None
+    if efficiency is None:
+        log.warning("%s missing: Table III skipped", eff_path)
+    frames = {ds: load_row_frames(root, ds, list(models), seeds) for ds in datasets}
+    return ReportInputs(root, list(datasets), list(models), seeds, paper, results, frames, efficiency,
+                        collect_scale(root, list(datasets), list(models), results, seeds))
 
 
 def headline_metrics(results: dict[str, dict[str, ModelResult]], claim_rows: Sequence[Any]) -> dict[str, Any]:
@@ -71,17 +133,22 @@ def headline_metrics(results: dict[str, dict[str, ModelResult]], claim_rows: Seq
     return {HEADLINE_KEY: tm, "claims": verdict_counts(claim_rows)}
 
 
-def _replace_dir(new: Path, target: Path) -> None:
-    """Move the built directory ``new`` onto ``target`` (the old one is removed first)."""
-    target.parent.mkdir(parents=True, exist_ok=True)
-    if target.exists():
-        shutil.rmtree(target)
-    if new.exists():
-        os.replace(new, target)
-
-
-def _rel(p: Path, base: Path) -> str:
-    return Path(p).relative_to(base).as_posix()
+# ----------------------------------------------------------------------------- index.md
+def _sources_section(parts: ReportParts) -> list[str]:
+    """Per dataset: data source, frames, test frames, resolution, DVS and the models with results;
+    then this run's scale beside the paper's."""
+    out = ["## Data sources and scale", "",
+           "| Dataset | Data source | Frames train/val/test | Test frames per run | Resolution | DVS | "
+           "Models with results |",
+           "|---|---|---|---|---|---|---|"]
+    for ds, sc in parts.scales.items():
+        counts = "/".join(str(sc.counts.get(k, "?")) for k in SPLITS) if sc.counts else "?"
+        mods = ", ".join(ROW_LABEL.get(m, m) for m in parts.results.get(ds, {})) or "none"
+        dvs = "?" if sc.has_dvs is None else ("yes" if sc.has_dvs else "no")
+        n_test = "/".join(map(str, sc.n_test_frames)) or "?"
+        out.append(f"| {DATASET_LABEL.get(ds, ds)} | {sc.source or 'unknown'} | {counts} | {n_test} | "
+                   f"{sc.resolution or '?'} | {dvs} | {mods} |")
+    return out + [""] + [f"- {s}" for s in parts.scale_text] + [""]
 
 
 def _seeds_overview(results: dict[str, dict[str, ModelResult]], scales: dict[str, DatasetScale]) -> list[str]:
@@ -99,7 +166,7 @@ def _seeds_overview(results: dict[str, dict[str, ModelResult]], scales: dict[str
         for m in [m for m in ROW_ORDER if m in per_model] + [m for m in per_model if m not in ROW_ORDER]:
             texts = sorted({", ".join("?" if k is None else str(k) for k in ks) + f" ({len(ks)})"
                             for ks in per_model[m]})
-            out.append(f"| {MODEL_LABEL.get(m, m)} | {'; '.join(texts)} |")
+            out.append(f"| {ROW_LABEL.get(m, m)} | {'; '.join(texts)} |")
         out.append("")
     frames = [f"{DATASET_LABEL.get(ds, ds)} {'/'.join(map(str, sc.n_test_frames)) or '?'}"
               for ds, sc in scales.items()]
@@ -107,96 +174,209 @@ def _seeds_overview(results: dict[str, dict[str, ModelResult]], scales: dict[str
     return out
 
 
-def index_markdown(*, results: dict[str, dict[str, ModelResult]], scales: dict[str, DatasetScale],
-                   table2_md: str, table3_md: Optional[str], scale_text: list[str],
-                   figures: dict[str, dict[str, str]], efficiency: Optional[dict[str, Any]],
-                   scale_name: str, claims_md: Optional[str] = None, extra_md: Optional[str] = None,
-                   headline: Optional[dict[str, Any]] = None, study: Optional[StudyOutputs] = None,
-                   study_figures: Optional[dict[str, str]] = None) -> str:
-    """The text of ``reports/index.md`` (``study``: the loss-balancing study's outputs, its
-    figures' paths relative to the index in ``study_figures``)."""
-    out = ["# Reproduction report: Natan & Miura (2022), compact multi-task perception", ""]
-    out += [f"Generated by the `report` stage (`pipeline/report.py`) at params scale `{scale_name or '?'}`. "
-            "The paper's published numbers are kept as data in `src/compact_perception/paper_numbers.yaml`.", ""]
-    out += ["## Data sources and scale", "",
-            "| Dataset | Data source | Frames train/val/test | Test frames per run | Resolution | DVS | "
-            "Models with results |",
-            "|---|---|---|---|---|---|---|"]
-    for ds, sc in scales.items():
-        counts = "/".join(str(sc.counts.get(k, "?")) for k in ("train", "val", "test")) if sc.counts else "?"
-        mods = ", ".join(MODEL_LABEL.get(m, m) for m in results.get(ds, {})) or "none"
-        dvs = "?" if sc.has_dvs is None else ("yes" if sc.has_dvs else "no")
-        n_test = "/".join(map(str, sc.n_test_frames)) or "?"
-        out.append(f"| {DATASET_LABEL.get(ds, ds)} | {sc.source or 'unknown'} | {counts} | {n_test} | "
-                   f"{sc.resolution or '?'} | {dvs} | {mods} |")
-    out += [""] + [f"- {s}" for s in scale_text] + [""]
-    out += _seeds_overview(results, scales)
-    if headline is not None:
-        tm = headline.get(HEADLINE_KEY) or {}
-        counts = headline.get("claims") or {}
-        out += ["## Headline", "",
-                f"[`metrics.json`](metrics.json) (the pipeline's one DVC metrics file, `dvc metrics show` / "
-                f"`dvc exp show`): `{HEADLINE_KEY}` = TM of {MODEL_LABEL.get(HEADLINE_MODEL, HEADLINE_MODEL)} "
-                "(the paper's proposed model in the form that produced its Table II), mean over its seeds, per "
-                "dataset: " + (", ".join(f"{DATASET_LABEL.get(d, d)} {v:.4f}" for d, v in tm.items()) or "none")
-                + "; `claims`: scorecard rows per verdict: "
-                + ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in counts.items()) + ". Every run's scores: "
-                "`results/<ds>/<model>/seed<k>/metrics.json`.", ""]
-    out += ["## Table II: test comparison", "",
-            "Files: [Markdown](tables/table2.md), [LaTeX](tables/table2.tex), [CSV](tables/table2.csv).", "",
-            table2_md, ""]
-    if claims_md is not None:
-        body = claims_md.split("\n", 1)[1].lstrip("\n") if claims_md.startswith("# ") else claims_md
+def _headline_section(headline: Optional[dict[str, Any]]) -> list[str]:
+    if headline is None:
+        return []
+    tm = headline.get(HEADLINE_KEY) or {}
+    counts = headline.get("claims") or {}
+    return ["## Headline", "",
+            f"[`metrics.json`](metrics.json) (the pipeline's one DVC metrics file, `dvc metrics show` / "
+            f"`dvc exp show`): `{HEADLINE_KEY}` = TM of {ROW_LABEL.get(HEADLINE_MODEL, HEADLINE_MODEL)} "
+            "(the paper's proposed model in the form that produced its Table II), mean over its seeds, per "
+            "dataset: " + (", ".join(f"{DATASET_LABEL.get(d, d)} {v:.4f}" for d, v in tm.items()) or "none")
+            + "; `claims`: scorecard rows per verdict: "
+            + ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in counts.items()) + ". Every run's scores: "
+            "`results/<ds>/<model>/seed<k>/metrics.json`.", ""]
+
+
+def _body(markdown: str) -> str:
+    """A table's Markdown without its own ``# `` title line."""
+    return markdown.split("\n", 1)[1].lstrip("\n") if markdown.startswith("# ") else markdown
+
+
+def _tables_section(parts: ReportParts) -> list[str]:
+    """Table II, the claims scorecard, the metrics beyond the paper's, Table III and the link to
+    the paper-vs-reproduced table."""
+    out = ["## Table II: test comparison", "",
+           "Files: [Markdown](tables/table2.md), [LaTeX](tables/table2.tex), [CSV](tables/table2.csv).", "",
+           parts.table2_md, ""]
+    if parts.claims_md is not None:
         out += ["## Claims scorecard", "",
-                "Files: [Markdown](tables/claims.md), [CSV](tables/claims.csv).", "", body, ""]
-    if extra_md is not None:
+                "Files: [Markdown](tables/claims.md), [CSV](tables/claims.csv).", "", _body(parts.claims_md), ""]
+    if parts.extra_md is not None:
         out += ["## Metrics beyond the paper's", "",
                 "Per-class IoU / mIoU (SS, LS, BEVP) and depth AbsRel, RMSE, δ<1.25 on metric depth. Files: "
                 "[Markdown](tables/extra_metrics.md), [CSV](tables/extra_metrics.csv), per class: "
-                "[CSV](tables/extra_metrics_per_class.csv).", "", extra_md, ""]
+                "[CSV](tables/extra_metrics_per_class.csv).", "", parts.extra_md, ""]
     out += ["## Table III: efficiency", ""]
-    if table3_md is None:
+    if parts.table3_md is None:
         out += ["No `results/benchmark/efficiency.json`: the benchmark stage has not run.", ""]
     else:
-        out += [f"Device: {efficiency.get('device') if efficiency else '?'}. "
+        out += [f"Device: {parts.efficiency.get('device') if parts.efficiency else '?'}. "
                 "Files: [Markdown](tables/table3.md), [LaTeX](tables/table3.tex), [CSV](tables/table3.csv).", "",
-                table3_md, ""]
-    out += ["## Paper vs reproduced", "",
-            "Every cell available on either side: [Markdown](tables/paper_vs_reproduced.md), "
-            "[LaTeX](tables/paper_vs_reproduced.tex), [CSV](tables/paper_vs_reproduced.csv). "
-            + ("" if scale_name == "paper" else
-               "This run is at a reduced scale (frames, epochs, resolution above), so its numbers are not "
-               "expected to match the paper's."), ""]
-    if study is not None:
-        body = study.markdown_text.split("\n", 1)[1].lstrip("\n") if study.markdown_text.startswith("# ") \
-            else study.markdown_text
-        body = body.replace("\n## ", "\n### ")
-        out += ["## Loss-balancing study (beyond the paper)", "",
-                "Every loss-weighting method on the compact 15L network, with Δm against single-task networks. "
-                "Files: [Markdown](tables/weighting.md), [CSV](tables/weighting.csv).", "", body, ""]
-        for ds, fig in (study_figures or {}).items():
-            title = f"Loss weights per epoch of every adaptive method, {DATASET_LABEL.get(ds, ds)}"
-            out += [f"**{title}**", "", f"![{title}]({fig})", ""]
-    out += ["## Training curves of every run (DVC plots)", "",
-            "Long-format CSV files, one line per run (`run` = `<dataset>/<model>/seed<k>`), rendered by `dvc plots "
-            "show` with the templates in `.dvc/plots/`: [plots/val_tm.csv](plots/val_tm.csv) (`epoch, run, val_tm`: "
-            "validation TM per epoch of every run; a baseline's is its own tasks' share of TM) and "
-            "[plots/loss_weights.csv](plots/loss_weights.csv) (`epoch, run, task, weight`: every run whose loss "
-            "weighting logs weights).", ""]
-    out += ["## Figures", ""]
-    for ds, figs in figures.items():
+                parts.table3_md, ""]
+    return out + ["## Paper vs reproduced", "",
+                  "Every cell available on either side: [Markdown](tables/paper_vs_reproduced.md), "
+                  "[LaTeX](tables/paper_vs_reproduced.tex), [CSV](tables/paper_vs_reproduced.csv). "
+                  + ("" if parts.scale_name == "paper" else
+                     "This run is at a reduced scale (frames, epochs, resolution above), so its numbers are not "
+                     "expected to match the paper's."), ""]
+
+
+def _study_section(parts: ReportParts) -> list[str]:
+    if parts.study is None:
+        return []
+    out = ["## Loss-balancing study (beyond the paper)", "",
+           "Every loss-weighting method on the compact 15L network, with Δm against single-task networks. "
+           "Files: [Markdown](tables/weighting.md), [CSV](tables/weighting.csv).", "",
+           _body(parts.study.markdown_text).replace("\n## ", "\n### "), ""]
+    for ds, fig in parts.study_figures.items():
+        title = f"Loss weights per epoch of every adaptive method, {DATASET_LABEL.get(ds, ds)}"
+        out += [f"**{title}**", "", f"![{title}]({fig})", ""]
+    return out
+
+
+PLOTS_SECTION: list[str] = [
+    "## Training curves of every run (DVC plots)", "",
+    "Long-format CSV files, one line per run (`run` = `<dataset>/<model>/seed<k>`), rendered by `dvc plots "
+    "show` with the templates in `.dvc/plots/`: [plots/val_tm.csv](plots/val_tm.csv) (`epoch, run, val_tm`: "
+    "validation TM per epoch of every run; a baseline's is its own tasks' share of TM) and "
+    "[plots/loss_weights.csv](plots/loss_weights.csv) (`epoch, run, task, weight`: every run whose loss "
+    "weighting logs weights).", ""]
+
+
+def _figures_section(parts: ReportParts) -> list[str]:
+    out = ["## Figures", ""]
+    for ds, figs in parts.figures.items():
         if not figs:
             continue
-        out += [f"### {DATASET_LABEL.get(ds, ds)} ({scales[ds].source or 'unknown source'})", ""]
-        for key, title in (("world", "One frame of the simulated world, all sensors and ground truths (Fig. 1)"),
-                           ("lidar", "LiDAR preprocessing: 14 height layers and the flattened layer (Fig. 5)"),
-                           ("loss_weights", "Loss weights of 15L+MGN per epoch, both MGN forms, mean over seeds "
-                                            "(Fig. 8)"),
-                           ("curves", "Validation TM per epoch, mean over seeds"),
-                           ("qualitative", "Qualitative results, one test frame, each model's first seed (Fig. 6/7)")):
+        out += [f"### {DATASET_LABEL.get(ds, ds)} ({parts.scales[ds].source or 'unknown source'})", ""]
+        for key, title in FIGURE_TITLES.items():
             if key in figs:
                 out += [f"**{title}**", "", f"![{title}]({figs[key]})", ""]
+    return out
+
+
+def index_markdown(parts: ReportParts) -> str:
+    """The text of ``reports/index.md``, section by section."""
+    out = ["# Reproduction report: Natan & Miura (2022), compact multi-task perception", ""]
+    out += [f"Generated by the `report` stage (`pipeline/report.py`) at params scale `{parts.scale_name or '?'}`. "
+            "The paper's published numbers are kept as data in `src/compact_perception/paper_numbers.yaml`.", ""]
+    out += _sources_section(parts) + _seeds_overview(parts.results, parts.scales) + _headline_section(parts.headline)
+    out += _tables_section(parts) + _study_section(parts) + PLOTS_SECTION + _figures_section(parts)
     return "\n".join(out).rstrip() + "\n"
+
+
+# ----------------------------------------------------------------------------- the steps
+def write_tables(inp: ReportInputs, out_dir: Path, scale_name: str) -> tuple[ReportParts, list[Path]]:
+    """Table II, the metrics beyond the paper's, the claims scorecard, Table III and the
+    paper-vs-reproduced table under ``out_dir``, each built once; returns the parts of the index
+    they give (the headline metrics included) and the written paths."""
+    t2 = build_table2(inp.results, inp.frames)
+    t3 = None if inp.efficiency is None else build_table3(inp.efficiency)
+    claim_ds = [ds for ds in inp.datasets if inp.results.get(ds) or inp.frames.get(ds)]
+    claim_rows = build_claims(inp.root, claim_ds, inp.paper, frames=inp.frames, seeds=inp.seeds,
+                              efficiency=inp.efficiency, table3=t3)
+    lines = scale_lines(inp.scales, inp.paper, scale_name=scale_name, device=(inp.efficiency or {}).get("device", ""))
+    files = {**table2_files(t2), **extra_files(build_extra_rows(inp.results)), **claims_files(claim_rows),
+             **({} if t3 is None else table3_files(t3, inp.efficiency or {})),
+             **comparison_files(inp.paper, t2, t3, lines)}
+    parts = ReportParts(scale_name, inp.results, inp.scales, lines, files["table2.md"],
+                        table3_md=files.get("table3.md"), efficiency=inp.efficiency, claims_md=files["claims.md"],
+                        extra_md=files["extra_metrics.md"], headline=headline_metrics(inp.results, claim_rows))
+    return parts, write_files(out_dir, files)
+
+
+def write_study(inp: ReportInputs, study: Optional[Any], parts: ReportParts, tables_dir: Path, figures_dir: Path,
+                base: Path) -> list[Path]:
+    """The loss-balancing study's table and figures (:func:`.study.write_study_report`; left out
+    without ``study``), recorded in ``parts`` (figures relative to ``base``); returns the paths."""
+    if study is None:
+        log.info("no study params given: the loss-balancing study's report is left out")
+        return []
+    parts.study = write_study_report(inp.root, study, tables_dir, figures_dir)
+    parts.study_figures = {ds: _rel(p, base) for ds, p in parts.study.figures.items()}
+    return parts.study.paths
+
+
+def _run_dirs(runs: Sequence[RunPaths]) -> list[Path]:
+    return [r.run_dir for r in runs if r.run_dir.is_dir()]
+
+
+def _qualitative_figure(inp: ReportInputs, ds: str, runs: dict[str, list[RunPaths]], out_png: Path,
+                        frame: int) -> Optional[Path]:
+    """The Fig. 6/7 grid of ``ds`` from the first run with saved inputs and each model's first
+    run with saved predictions (``None`` without saved inputs)."""
+    found = [r.eval_dir / "inputs.npz" for m in inp.models for r in runs[m] if (r.eval_dir / "inputs.npz").is_file()]
+    if not found:
+        return None
+    preds, shown = {}, {}
+    for m in inp.models:
+        for r in runs[m]:
+            arr = load_npz(r.eval_dir / "predictions.npz")
+            if arr is not None:
+                preds[m], shown[m] = arr, r.seed
+                break
+    seed_txt = ", ".join(sorted({f"seed {k}" for k in shown.values()}))
+    title = (f"{DATASET_LABEL.get(ds, ds)}, data: {inp.scales[ds].source or 'unknown source'}"
+             + (f" (each model's first run: {seed_txt})" if seed_txt else ""))
+    return plot_qualitative(ds, load_npz(found[0]) or {}, preds, out_png, frame=frame,
+                            models=[m for m in ROW_ORDER if m in preds], labels=ROW_LABEL, title=title)
+
+
+def _dataset_figures(inp: ReportInputs, ds: str, figures_dir: Path, frame: int) -> dict[str, Path]:
+    """The figures of one dataset this stage draws: both MGN forms' loss weights (Fig. 8), the
+    validation curves and the qualitative grid, each where its inputs exist."""
+    label = DATASET_LABEL.get(ds, ds)
+    runs = {m: list_runs(inp.root, ds, m, seeds_for(inp.seeds, m)) for m in inp.models}
+    out: dict[str, Optional[Path]] = {}
+    mgn = {ROW_LABEL.get(m, m): dirs for m in MGN_FORMS if m in runs and (dirs := _run_dirs(runs[m]))}
+    if mgn:
+        out["loss_weights"] = plot_loss_weights(mgn, figures_dir / f"loss_weights_{ds}.png",
+                                                f"Loss weights update on {label} (15L+MGN)")
+    run_dirs = {m: dirs for m, rs in runs.items() if (dirs := _run_dirs(rs))}
+    if run_dirs:
+        out["curves"] = plot_training_curves(run_dirs, figures_dir / f"curves_{ds}.png",
+                                             f"{label}: validation TM per epoch")
+    out["qualitative"] = _qualitative_figure(inp, ds, runs, figures_dir / f"qualitative_{ds}.png", frame)
+    return {k: p for k, p in out.items() if p}
+
+
+def write_figures(inp: ReportInputs, out_dir: Path, figures_dir: Path, base: Path, frame: int
+                  ) -> tuple[dict[str, dict[str, str]], list[Path]]:
+    """Every dataset's figures (:func:`_dataset_figures`) and those other stages wrote under
+    ``out_dir/figures``: dataset -> key -> path relative to the index (``base``), and the paths written."""
+    figures: dict[str, dict[str, str]] = {}
+    written: list[Path] = []
+    for ds in inp.datasets:
+        drawn = _dataset_figures(inp, ds, figures_dir, frame)
+        written += list(drawn.values())
+        figures[ds] = {k: _rel(p, base) for k, p in drawn.items()}
+        for key, name in STAGE_FIGURES.items():
+            if (out_dir / "figures" / name.format(ds=ds)).is_file():
+                figures[ds][key] = f"figures/{name.format(ds=ds)}"
+    return figures, written
+
+
+def _replace_dir(new: Path, target: Path) -> None:
+    """Move the built directory ``new`` onto ``target`` (the old one is removed first)."""
+    target.parent.mkdir(parents=True, exist_ok=True)
+    if target.exists():
+        shutil.rmtree(target)
+    if new.exists():
+        os.replace(new, target)
+
+
+def _publish(stage: Path, out_dir: Path) -> None:
+    """Move everything built in ``stage`` into ``out_dir``."""
+    for sub in ("tables", "figures/report", "plots"):
+        _replace_dir(stage / sub, out_dir / sub)
+    for name in ("metrics.json", "index.md"):
+        os.replace(stage / name, out_dir / name)
+
+
+def _rel(p: Path, base: Path) -> str:
+    return Path(p).relative_to(base).as_posix()
 
 
 def build_reports(root: Path, out_dir: Path, *, datasets: Sequence[str] = dataset_ids(),
@@ -210,107 +390,24 @@ def build_reports(root: Path, out_dir: Path, *, datasets: Sequence[str] = datase
     :func:`.collect.list_runs`): only those seeds' runs count. ``study``: the validated params
     (``scale``, ``seeds``, ``study.*``) or a :class:`.study.StudySpec`, for the loss-balancing
     study's table and figures (:func:`.study.write_study_report`); ``None`` leaves them out.
-    Missing inputs are tolerated
-    (logged; the tables say ``n/a``, figures are skipped); a malformed input raises
-    :class:`~.collect.ReportInputError` naming the file. Returns the written paths relative to
-    ``out_dir``.
+    Missing inputs are tolerated (logged; the tables say ``n/a``, figures are skipped); a
+    malformed input raises :class:`~.collect.ReportInputError` naming the file. Returns the
+    written paths relative to ``out_dir``.
     """
     root, out_dir = Path(root), Path(out_dir)
-    paper = paper or load_paper_numbers()
-    results = load_results(root, list(datasets), list(models), seeds)
-    eff_path = root / "results" / "benchmark" / "efficiency.json"
-    efficiency = read_json(eff_path) if eff_path.is_file() else None
-    if efficiency is None:
-        log.warning("%s missing: Table III skipped", eff_path)
-    scales = collect_scale(root, list(datasets), list(models), results, seeds)
-    written: list[Path] = []
+    inp = read_inputs(root, datasets, models, seeds, paper or load_paper_numbers())
     out_dir.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=out_dir, prefix=".report-") as stage:
         tmp = Path(stage)
-        tdir, fdir, pdir = tmp / "tables", tmp / "figures" / "report", tmp / "plots"
-        frames = {ds: load_row_frames(root, ds, list(models), seeds) for ds in datasets}
-        t2 = build_table2(results, frames)
-        t2_md = table2_markdown(t2)
-        written += write_table(tdir, "table2", t2_md, table2_latex(t2), table2_csv(t2))
-        written += write_extra_metrics(results, tdir)
-        extra_md = extra_markdown(build_extra_rows(results))
-        claim_ds = [ds for ds in datasets if results.get(ds) or frames.get(ds)]
-        claim_rows = build_claims(root, claim_ds, paper, frames=frames, seeds=seeds, efficiency=efficiency)
-        claims_md = claims_markdown(claim_rows)
-        for name, text in (("claims.md", claims_md), ("claims.csv", claims_csv(claim_rows))):
-            io.write_text(tdir / name, text)
-            written.append(tdir / name)
-        t3 = t3_md = None
-        if efficiency is not None:
-            t3 = build_table3(efficiency)
-            t3_md = table3_markdown(t3, efficiency)
-            written += write_table3(efficiency, tdir)
-        lines = scale_lines(scales, paper, scale_name=scale_name,
-                            device=(efficiency or {}).get("device", ""))
-        written += write_comparison(paper, t2, t3, lines, tdir)
-        written += write_plot_data(root, list(datasets), list(models), pdir, seeds,
+        tables_dir, figures_dir = tmp / "tables", tmp / "figures" / "report"
+        parts, written = write_tables(inp, tables_dir, scale_name)
+        written += write_plot_data(root, inp.datasets, inp.models, tmp / "plots", seeds,
                                    study_run_dirs(root, study) if study is not None else ())
-        study_out: Optional[StudyOutputs] = None
-        study_figs: dict[str, str] = {}
-        if study is not None:
-            study_out = write_study_report(root, study, tdir, fdir)
-            written += study_out.paths
-            study_figs = {ds: _rel(p, tmp) for ds, p in study_out.figures.items()}
-        else:
-            log.info("no study params given: the loss-balancing study's report is left out")
-        headline = headline_metrics(results, claim_rows)
-        io.write_json(tmp / "metrics.json", headline)
-        written.append(tmp / "metrics.json")
-        figures: dict[str, dict[str, str]] = {}
-        for ds in datasets:
-            figs: dict[str, str] = {}
-            label = DATASET_LABEL.get(ds, ds)
-            runs = {m: list_runs(root, ds, m, seeds_for(seeds, m)) for m in models}
-            mgn = {MODEL_LABEL.get(m, m): [r.run_dir for r in runs[m] if r.run_dir.is_dir()]
-                   for m in MGN_MODELS if m in runs}
-            mgn = {k: v for k, v in mgn.items() if v}
-            if mgn:
-                p = plot_loss_weights(mgn, fdir / f"loss_weights_{ds}.png", f"Loss weights update on {label} (15L+MGN)")
-                if p:
-                    figs["loss_weights"] = _rel(p, tmp)
-            run_dirs = {m: [r.run_dir for r in rs if r.run_dir.is_dir()] for m, rs in runs.items()}
-            run_dirs = {m: v for m, v in run_dirs.items() if v}
-            if run_dirs:
-                p = plot_training_curves(run_dirs, fdir / f"curves_{ds}.png", f"{label}: validation TM per epoch")
-                if p:
-                    figs["curves"] = _rel(p, tmp)
-            inp_path = find_inputs(root, ds, list(models), seeds)
-            if inp_path is not None:
-                inputs = load_npz(inp_path) or {}
-                preds, shown = {}, {}
-                for m in models:
-                    for r in runs[m]:
-                        arr = load_npz(r.eval_dir / "predictions.npz")
-                        if arr is not None:
-                            preds[m], shown[m] = arr, r.seed
-                            break
-                seed_txt = ", ".join(sorted({f"seed {k}" for k in shown.values() if k is not None}))
-                p = plot_qualitative(ds, inputs, preds, fdir / f"qualitative_{ds}.png", frame=figure_frame,
-                                     models=[m for m in ROW_ORDER if m in preds], labels=MODEL_LABEL,
-                                     title=f"{label}, data: {scales[ds].source or 'unknown source'}"
-                                           + (f" (each model's first run: {seed_txt})" if seed_txt else ""))
-                if p:
-                    figs["qualitative"] = _rel(p, tmp)
-            for key, name in (("world", f"world_{ds}.png"), ("lidar", f"lidar_preprocessing_{ds}.png")):
-                if (out_dir / "figures" / name).is_file():
-                    figs[key] = f"figures/{name}"
-            figures[ds] = figs
-            written += [tmp / f for k, f in figs.items() if k not in ("world", "lidar")]
-        text = index_markdown(results=results, scales=scales, table2_md=t2_md, table3_md=t3_md,
-                              scale_text=lines, figures=figures, efficiency=efficiency, scale_name=scale_name,
-                              claims_md=claims_md, extra_md=extra_md, headline=headline, study=study_out,
-                              study_figures=study_figs)
-        io.write_text(tmp / "index.md", text)
-        written.append(tmp / "index.md")
-        rel = [_rel(p, tmp) for p in written]
-        for sub in ("tables", "figures/report", "plots"):
-            _replace_dir(tmp / sub, out_dir / sub)
-        os.replace(tmp / "metrics.json", out_dir / "metrics.json")
-        os.replace(tmp / "index.md", out_dir / "index.md")
+        written += write_study(inp, study, parts, tables_dir, figures_dir, tmp)
+        parts.figures, drawn = write_figures(inp, out_dir, figures_dir, tmp, figure_frame)
+        io.write_json(tmp / "metrics.json", parts.headline)
+        io.write_text(tmp / "index.md", index_markdown(parts))
+        rel = [_rel(p, tmp) for p in [*written, *drawn, tmp / "metrics.json", tmp / "index.md"]]
+        _publish(tmp, out_dir)
     log.info("wrote %d report files under %s", len(rel), out_dir)
     return rel

@@ -16,28 +16,18 @@ stroke dash by task), so the plots scale to any number of runs without listing t
 """
 from __future__ import annotations
 
-import csv
-import io as _io
 import logging
 from pathlib import Path
 from typing import Sequence
 
-from ..core import io
 from .collect import SeedSpec, list_runs, run_name, seeds_for
 from .figures import read_val_curve, read_weight_curves
+from .tables.formats import csv_text, write_files
 
 log = logging.getLogger(__name__)
 
 VAL_TM_COLUMNS: tuple[str, ...] = ("epoch", "run", "val_tm")
 WEIGHT_COLUMNS: tuple[str, ...] = ("epoch", "run", "task", "weight")
-
-
-def _csv(header: Sequence[str], rows: list[list]) -> str:
-    buf = _io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(header)
-    w.writerows(rows)
-    return buf.getvalue()
 
 
 def plot_rows(root: Path, datasets: Sequence[str], models: Sequence[str], seeds: SeedSpec = None,
@@ -64,10 +54,8 @@ def write_plot_data(root: Path, datasets: Sequence[str], models: Sequence[str], 
     """Write ``val_tm.csv`` and ``loss_weights.csv`` under ``out_dir`` (both always, with their
     header even when empty, so the DVC plots always resolve); returns the paths."""
     val_rows, weight_rows = plot_rows(root, datasets, models, seeds, extra_runs)
-    out = {Path(out_dir) / "val_tm.csv": _csv(VAL_TM_COLUMNS, val_rows),
-           Path(out_dir) / "loss_weights.csv": _csv(WEIGHT_COLUMNS, weight_rows)}
-    for p, text in out.items():
-        io.write_text(p, text)
+    paths = write_files(out_dir, {"val_tm.csv": csv_text(VAL_TM_COLUMNS, val_rows),
+                                  "loss_weights.csv": csv_text(WEIGHT_COLUMNS, weight_rows)})
     log.info("plots: %d validation rows (%d runs), %d weight rows", len(val_rows), len({r[1] for r in val_rows}),
              len(weight_rows))
-    return list(out)
+    return paths

@@ -38,6 +38,7 @@ from ..core.layout import study_paths  # noqa: E402
 from ..weighting import weighting_class  # noqa: E402
 from .collect import Cell, aggregate_cells, list_runs, read_metrics, read_summary, with_derived  # noqa: E402
 from .figures import _mean_curve, read_weight_curves, save_figure  # noqa: E402
+from .schema import DATASET_LABEL  # noqa: E402
 
 log = logging.getLogger(__name__)
 
@@ -49,12 +50,14 @@ __all__ = [
 
 #: The paper's weighting forms: main runs of these models (model id -> weighting id).
 PAPER_FORMS: dict[str, str] = {"compact_15l": "static", "compact_15l_mgn": "mgn", "compact_15l_mgn_authors": "mgn"}
+#: The scores of a run: Table II's columns (the task metrics, TM, MV; eq. 6-7).
+RUN_SCORES: tuple[str, ...] = catalog.table2_columns()
 #: Every score column of a row, in table order.
-SCORES: tuple[str, ...] = catalog.metric_keys() + ("tm", "mv", "dm", "sec_per_epoch")
+SCORES: tuple[str, ...] = RUN_SCORES + ("dm", "sec_per_epoch")
+#: Column headers: the label and which way is better; MV (the balance of the tasks) has no arrow.
 SCORE_MD: dict[str, str] = {
-    **{k: f"{catalog.TASKS[t].metric_label} {'↑' if catalog.higher_is_better(k) else '↓'}"
-       for t in catalog.task_ids() for k in (catalog.metric_of(t),)},
-    "tm": "TM ↓", "mv": "MV", "dm": "Δm (%) ↑", "sec_per_epoch": "s / epoch",
+    **{k: f"{catalog.column_label(k)} {'↓' if catalog.lower_is_better(k) else '↑'}" for k in RUN_SCORES},
+    "mv": catalog.column_label("mv"), "dm": "Δm (%) ↑", "sec_per_epoch": "s / epoch",
 }
 DECIMALS: dict[str, int] = {"dm": 1, "sec_per_epoch": 2}
 NO_SD = "—"
@@ -263,7 +266,7 @@ def build_rows(results: Mapping[str, Mapping[str, Sequence[SeedResult]]], method
                 continue
             values: dict[str, list[float]] = {}
             for r in runs:
-                for k in catalog.metric_keys() + ("tm", "mv"):
+                for k in RUN_SCORES:
                     if k in r.scores:
                         values.setdefault(k, []).append(r.scores[k])
                 if m.kind != "single":
@@ -434,7 +437,6 @@ def write_study_report(root: Path, params: Any, out_tables: Path, out_figures: P
     results = collect_seed_results(Path(root), spec, methods)
     references: dict[str, dict[str, float]] = {}
     notes: dict[str, list[str]] = {}
-    dataset_label = {d: catalog.DATASETS[d].label for d in catalog.dataset_ids()}
     for ds in spec.datasets:
         ref, ref_notes = reference_means(results.get(ds, {}), methods)
         references[ds] = ref
@@ -446,7 +448,7 @@ def write_study_report(root: Path, params: Any, out_tables: Path, out_figures: P
         if absent:
             notes[ds].append("No runs yet: " + ", ".join(absent) + ".")
     rows = build_rows(results, methods, references)
-    text = weighting_markdown(rows, spec, references, notes, dataset_label)
+    text = weighting_markdown(rows, spec, references, notes, DATASET_LABEL)
     md_path, csv_path = Path(out_tables) / MD_NAME, Path(out_tables) / CSV_NAME
     io.write_text(md_path, text)
     io.write_text(csv_path, weighting_csv(rows))
@@ -459,7 +461,7 @@ def write_study_report(root: Path, params: Any, out_tables: Path, out_figures: P
             log.warning("study %s: no adaptive method has runs; no loss-weight figure", ds)
             continue
         p = plot_study_weights(panels, Path(out_figures) / f"loss_weights_study_{ds}.png",
-                               f"{dataset_label.get(ds, ds)}: loss weights per epoch of every adaptive method "
+                               f"{DATASET_LABEL.get(ds, ds)}: loss weights per epoch of every adaptive method "
                                "(thick: mean over seeds)")
         if p is not None:
             figures[ds] = p

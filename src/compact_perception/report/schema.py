@@ -1,0 +1,116 @@
+"""What the report's tables are made of, derived from the registries
+(:mod:`compact_perception.core.catalog`); no report module lists a model, dataset, metric or
+label of its own.
+
+- **rows**: every model in its ``table_order`` (the paper's order, baselines first), with the
+  combination of baselines (section V-D, SPEC 6) right after the last model that gives it a
+  task (:attr:`~compact_perception.core.catalog.ModelInfo.combination`);
+- **columns** of Table II: the task metrics in task order, then TM and MV (eq. 6-7), with their
+  labels, directions and the statistic their paired bootstrap uses (:mod:`compact_perception.stats`);
+- the two **MGN forms** (Algorithm 1 as printed, the authors' code) and the paper's row each
+  is compared with (the paper prints one 15L+MGN row);
+- the **loss-weight names** a weighted run logs (``w_<task>``, dvclive and ``summary.json``).
+"""
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from ..core import catalog
+from ..stats import stat_mean, stat_mv, stat_tm
+
+__all__ = [
+    "COMBINATION", "COMBINATION_MODELS", "COMBINATION_SOURCE", "COMPACT", "ROW_ORDER", "ROW_LABEL", "DATASET_LABEL",
+    "TASK_COLUMNS", "TABLE2_COLUMNS", "PER_FRAME_COLUMNS", "LOWER_IS_BETTER", "COLUMN_MD", "COLUMN_TEX",
+    "column_stat", "stat_columns", "MGN_FORMS", "PAPER_MGN", "paper_row", "WEIGHT_KEYS", "WEIGHT_LABEL",
+    "weight_key", "weight_task", "row_ids", "combination_models", "WEIGHT_PREFIX",
+]
+
+# ----------------------------------------------------------------------------- rows
+#: The row id of the combination of baselines.
+COMBINATION = "combination"
+
+
+def combination_models() -> tuple[str, ...]:
+    """The models that give the combination its tasks (:attr:`~..core.catalog.ModelInfo.combination`),
+    in table order."""
+    return tuple(m for m in catalog.table_model_ids() if catalog.MODELS[m].combination)
+
+
+def row_ids() -> tuple[str, ...]:
+    """Every model in table order, the combination right after the last model that gives it a task."""
+    models = catalog.table_model_ids()
+    at = max(models.index(m) for m in combination_models()) + 1
+    return models[:at] + (COMBINATION,) + models[at:]
+
+
+COMBINATION_MODELS: tuple[str, ...] = combination_models()
+#: Task metric -> the model it comes from in the combination.
+COMBINATION_SOURCE: dict[str, str] = catalog.combination_source()
+COMPACT: tuple[str, ...] = catalog.compact_model_ids()
+ROW_ORDER: tuple[str, ...] = row_ids()
+ROW_LABEL: dict[str, str] = {**{m: catalog.model_label(m) for m in catalog.model_ids()}, COMBINATION: "Combination"}
+DATASET_LABEL: dict[str, str] = {d: catalog.DATASETS[d].label for d in catalog.dataset_ids()}
+
+# ----------------------------------------------------------------------------- columns
+TASK_COLUMNS: tuple[str, ...] = catalog.metric_keys()
+TABLE2_COLUMNS: tuple[str, ...] = catalog.table2_columns()
+#: The columns a ``per_frame.csv`` holds per test frame (the task metrics and TM).
+PER_FRAME_COLUMNS: tuple[str, ...] = catalog.per_frame_columns()
+LOWER_IS_BETTER: frozenset[str] = frozenset(c for c in TABLE2_COLUMNS if catalog.lower_is_better(c))
+COLUMN_MD: dict[str, str] = {c: catalog.column_label(c) for c in TABLE2_COLUMNS}
+
+
+def _tex_label(label: str) -> str:
+    """``MAE_DE`` -> ``$MAE_{DE}$``, ``TM`` -> ``$TM$``."""
+    head, _, sub = label.partition("_")
+    return f"${head}_{{{sub}}}$" if sub else f"${head}$"
+
+
+COLUMN_TEX: dict[str, str] = {c: _tex_label(COLUMN_MD[c]) for c in TABLE2_COLUMNS}
+#: The statistic of a score's paired bootstrap (:mod:`compact_perception.stats`), from the task means.
+_SCORE_STAT: dict[str, Callable[[np.ndarray], np.ndarray]] = {"tm": stat_tm, "mv": stat_mv}
+
+
+def column_stat(col: str) -> Callable[[np.ndarray], np.ndarray]:
+    """The bootstrap statistic of a Table II column: the mean of a task metric, TM (eq. 6) or MV
+    (eq. 7) of the four task means; it reads the columns :func:`stat_columns` gives."""
+    return stat_mean if col in TASK_COLUMNS else _SCORE_STAT[col]
+
+
+def stat_columns(col: str) -> list[str]:
+    """The per-frame columns :func:`column_stat` of ``col`` reads: the metric itself, or every task metric."""
+    return [col] if col in TASK_COLUMNS else list(TASK_COLUMNS)
+
+
+# ----------------------------------------------------------------------------- the two MGN forms
+#: The MGN forms each tested by the claims about 15L+MGN: model id -> variant label.
+MGN_FORMS: dict[str, str] = {m: v for m, v in (("compact_15l_mgn", "Alg. 1"),
+                                               ("compact_15l_mgn_authors", "authors' code")) if m in catalog.MODELS}
+#: The paper's one 15L+MGN row of Table II (it came from the authors' code); both forms are compared with it.
+PAPER_MGN = "compact_15l_mgn"
+
+
+def paper_row(row_id: str) -> str:
+    """The paper's row a row of this run is compared with (both MGN forms: :data:`PAPER_MGN`)."""
+    return PAPER_MGN if row_id in MGN_FORMS else row_id
+
+
+# ----------------------------------------------------------------------------- loss weights
+WEIGHT_PREFIX = "w_"
+
+
+def weight_key(task: str) -> str:
+    """The name a run logs the loss weight of ``task`` under: ``de`` -> ``w_de``."""
+    return WEIGHT_PREFIX + task
+
+
+def weight_task(name: str) -> str:
+    """The task of a logged loss-weight name: ``w_de`` -> ``de``."""
+    return name[len(WEIGHT_PREFIX):]
+
+
+#: Every task's loss-weight name, in task order.
+WEIGHT_KEYS: tuple[str, ...] = tuple(weight_key(t) for t in catalog.task_ids())
+WEIGHT_LABEL: dict[str, str] = {weight_key(t): catalog.TASKS[t].label for t in catalog.task_ids()}

@@ -1,0 +1,89 @@
+"""What every report table shares: number formats (the paper's 3 decimals, its ``<0.001``
+variances, ``mean ± sd`` over the seeds), the cell marks, and the Markdown, LaTeX and CSV writers."""
+from __future__ import annotations
+
+import csv
+import io as _io
+from pathlib import Path
+from typing import Any, Iterable, Mapping, Optional, Sequence
+
+from ...core import io
+from ..collect import Cell
+
+DECIMALS = 3
+NOT_APPLICABLE = "-"
+NOT_AVAILABLE = "n/a"
+INCONCLUSIVE_MARK = "†"
+
+
+# ----------------------------------------------------------------------------- numbers
+def fmt_num(x: Optional[float], decimals: int = DECIMALS) -> str:
+    return "" if x is None else f"{x:.{decimals}f}"
+
+
+def fmt_var(v: Optional[float], decimals: int = DECIMALS, latex: bool = False) -> str:
+    """A variance as the paper prints it: ``<0.001`` when it rounds to zero."""
+    if v is None:
+        return ""
+    if v < 0.5 * 10 ** (-decimals):
+        return ("$<$" if latex else "<") + f"{10 ** (-decimals):.{decimals}f}"
+    return f"{v:.{decimals}f}"
+
+
+def fmt_seeds(cell: Optional[Cell], latex: bool = False, decimals: int = DECIMALS) -> str:
+    """``mean ± sd`` over the seeds (sample sd), or ``mean (n=1)`` for a single seed."""
+    if cell is None:
+        return NOT_APPLICABLE
+    text = fmt_num(cell.mean, decimals)
+    if cell.std is not None:
+        return text + (" $\\pm$ " if latex else " ± ") + fmt_num(cell.std, decimals)
+    return text + f" (n={cell.n_seeds})"
+
+
+def bold(text: str, latex: bool) -> str:
+    return f"\\textbf{{{text}}}" if latex else f"**{text}**"
+
+
+def and_list(words: Sequence[str]) -> str:
+    """``a, b and c``."""
+    return words[0] if len(words) == 1 else ", ".join(words[:-1]) + " and " + words[-1]
+
+
+# ----------------------------------------------------------------------------- writers
+def tex_escape(text: str) -> str:
+    """Escape LaTeX specials in plain text."""
+    out = text
+    for a, b in (("\\", "\\textbackslash{}"), ("&", "\\&"), ("%", "\\%"), ("_", "\\_"), ("#", "\\#"),
+                 ("$", "\\$"), ("{", "\\{"), ("}", "\\}")):
+        out = out.replace(a, b)
+    return out
+
+
+def md_table(header: list[str], rows: list[list[str]], align: Optional[list[str]] = None) -> str:
+    align = align or ["---"] * len(header)
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join(align) + "|"]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines) + "\n"
+
+
+def csv_text(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:
+    """CSV with ``\\n`` line ends; ``None`` is an empty cell, a float its ``repr`` (every digit)."""
+    buf = _io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(header)
+    for r in rows:
+        w.writerow(["" if v is None else (repr(v) if isinstance(v, float) else v) for v in r])
+    return buf.getvalue()
+
+
+def table_files(stem: str, md: str, tex: str, csv_body: str) -> dict[str, str]:
+    """A table's three files: ``<stem>.md``, ``.tex``, ``.csv`` (file name -> text)."""
+    return {f"{stem}.md": md, f"{stem}.tex": tex, f"{stem}.csv": csv_body}
+
+
+def write_files(out_dir: Path, files: Mapping[str, str]) -> list[Path]:
+    """Write every ``file name: text`` under ``out_dir`` atomically; returns the paths in order."""
+    paths = [Path(out_dir) / name for name in files]
+    for path, text in zip(paths, files.values()):
+        io.write_text(path, text)
+    return paths
