@@ -10,13 +10,21 @@ from compact_perception.metrics import metric_variance
 from compact_perception.stats import (
     CONTRADICTED,
     INCONCLUSIVE,
+    NOT_DECIDABLE,
     REPRODUCED,
+    VERDICTS,
     bootstrap_contrast,
+    decidable,
+    mde,
+    normal_ppf,
     paired_bootstrap,
+    satterthwaite_df,
     seed_bootstrap,
     stat_mean,
     stat_mv,
     stat_tm,
+    t_cdf,
+    t_ppf,
     verdict,
 )
 
@@ -154,3 +162,55 @@ def test_verdict_rejects_bad_bounds() -> None:
         verdict(0.2, 0.1)
     with pytest.raises(ValueError):
         verdict(-0.1, 0.1, margin=-1.0)
+
+
+# ============================================================================= issue 24: verdicts that hold
+# ----------------------------------------------------------------------------- Student's t and the MDE
+@pytest.mark.parametrize(("p", "df", "printed"), [
+    (0.975, 1, 12.706), (0.975, 2, 4.303), (0.975, 3, 3.182), (0.975, 10, 2.228), (0.975, 30, 2.042),
+    (0.8, 2, 1.061), (0.8, 10, 0.879), (0.8, 30, 0.854), (0.995, 5, 4.032), (0.9, 4, 1.533),
+])
+def test_t_quantile_matches_printed_tables(p: float, df: float, printed: float) -> None:
+    assert t_ppf(p, df) == pytest.approx(printed, abs=6e-4)
+    assert t_ppf(1 - p, df) == pytest.approx(-t_ppf(p, df))
+    assert t_cdf(t_ppf(p, df), df) == pytest.approx(p, abs=1e-12)
+
+
+def test_t_quantile_limits_and_errors() -> None:
+    assert normal_ppf(0.975) == pytest.approx(1.959964, abs=1e-6)
+    assert normal_ppf(0.8) == pytest.approx(0.841621, abs=1e-6)
+    assert t_ppf(0.975, math.inf) == normal_ppf(0.975) and t_ppf(0.975, 1e6) == pytest.approx(1.959966, abs=1e-5)
+    assert t_ppf(0.975, 2.5) < t_ppf(0.975, 2) and t_ppf(0.5, 3) == 0.0    # non-integer df (Satterthwaite)
+    assert t_cdf(0.0, 4) == 0.5 and t_cdf(1.0, 1) == pytest.approx(0.75)      # Cauchy: 1/2 + atan(1)/pi
+    for bad in ((0.0, 2), (1.0, 2), (0.5, 0)):
+        with pytest.raises(ValueError):
+            t_ppf(*bad)
+
+
+@pytest.mark.parametrize("p", [0.6, 0.8, 0.9, 0.975, 0.995, 0.9999])
+def test_t_quantile_against_closed_forms(p: float) -> None:
+    """df = 1 (Cauchy): tan(pi (p - 1/2)); df = 2: (2p - 1) / sqrt(2 p (1 - p))."""
+    assert t_ppf(p, 1) == pytest.approx(math.tan(math.pi * (p - 0.5)), rel=1e-10)
+    assert t_ppf(p, 2) == pytest.approx((2 * p - 1) / math.sqrt(2 * p * (1 - p)), rel=1e-10)
+
+
+def test_mde_against_the_closed_form() -> None:
+    """MDE = (t_{1-alpha/2, df} + t_{power, df}) * SE, with table values by hand."""
+    assert mde(0.01, 2) == pytest.approx((4.303 + 1.061) * 0.01, abs=2e-5)       # 0.05364
+    assert mde(0.01, 10) == pytest.approx((2.228 + 0.879) * 0.01, abs=2e-5)      # 0.03107
+    assert mde(0.002, math.inf) == pytest.approx((1.95996 + 0.84162) * 0.002, abs=1e-7)
+    assert mde(0.01, 2, alpha=0.1, power=0.9) == pytest.approx((2.920 + 1.886) * 0.01, abs=2e-5)
+    assert math.isnan(mde(math.nan, 2)) and math.isnan(mde(0.01, math.nan))
+
+
+def test_satterthwaite_df() -> None:
+    assert satterthwaite_df([(1.0, 2.0), (1.0, 9.0)]) == pytest.approx(4.0 / (0.5 + 1 / 9))
+    assert satterthwaite_df([(3.0, 4.0)]) == pytest.approx(4.0)
+    assert satterthwaite_df([(0.0, 2.0)]) == math.inf
+    assert satterthwaite_df([(1.0, 2.0), (1.0, 2.0)], total=0.1) == 1.0          # floored at 1
+
+
+def test_decidable_needs_three_seeds_per_trained_model() -> None:
+    assert decidable((3, 3)) and not decidable((3, 2)) and not decidable((1, 3)) and not decidable(())
+    assert decidable((1, 3), (True, False))          # a deterministic floor: one fixed run
+    assert set(VERDICTS) == {REPRODUCED, CONTRADICTED, INCONCLUSIVE, NOT_DECIDABLE} and NOT_DECIDABLE == "not decidable"

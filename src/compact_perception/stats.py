@@ -15,6 +15,14 @@ resample is a vector of frame counts and the resampled means are ``counts @ scor
 model's value is the mean over its (resampled) seeds of the run statistic. The RNG seed is
 fixed (:data:`BOOTSTRAP_SEED`): the same inputs give the same interval on every machine.
 
+Power (:func:`mde`): the minimal detectable effect at 80% power, two-sided alpha 0.05, is
+``(t_{1-alpha/2, df} + t_{power, df}) * SE`` (the usual normal-approximation formula with t
+quantiles at the interval's df; it ignores the chance of crossing the opposite bound); the t
+quantiles come from :func:`t_ppf` (no scipy).
+
+No verdict from a single run (:func:`decidable`): with fewer than :data:`MIN_SEEDS` seeds in a
+non-fixed group the comparison is :data:`NOT_DECIDABLE`; a fixed group is exempt.
+
 Verdict rule (:func:`verdict`, CLAIMS.md): ``reproduced`` when the whole 95% interval lies on
 the claimed side of 0 (strictly above 0), ``contradicted`` when it lies wholly on the other
 side (strictly below 0), ``inconclusive`` otherwise (an interval touching 0 included). For a
@@ -24,6 +32,7 @@ claim of equality, with an equivalence margin m: ``reproduced`` when the interva
 """
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from dataclasses import dataclass
@@ -39,10 +48,20 @@ __all__ = [
     "BOOTSTRAP_SEED",
     "N_BOOT",
     "CONFIDENCE",
+    "ALPHA",
+    "POWER",
     "MIN_SEEDS",
     "REPRODUCED",
     "CONTRADICTED",
     "INCONCLUSIVE",
+    "NOT_DECIDABLE",
+    "VERDICTS",
+    "t_cdf",
+    "t_ppf",
+    "normal_ppf",
+    "satterthwaite_df",
+    "mde",
+    "decidable",
     "BootstrapResult",
     "stat_mean",
     "stat_tm",
@@ -59,9 +78,13 @@ BOOTSTRAP_SEED = 20220
 N_BOOT = 2000
 #: Two-sided coverage of the percentile interval.
 CONFIDENCE = 0.95
-#: Fewest seeds for a verdict on a one-number-per-run observation (e.g. MGN's final weights).
+#: Two-sided level and power of the minimal detectable effect (:func:`mde`).
+ALPHA, POWER = 0.05, 0.8
+#: Fewest seeds of a trained model for a verdict (issue 24: no verdict from a single run).
 MIN_SEEDS = 3
 REPRODUCED, CONTRADICTED, INCONCLUSIVE = "reproduced", "contradicted", "inconclusive"
+NOT_DECIDABLE = "not decidable"
+VERDICTS: tuple[str, ...] = (REPRODUCED, CONTRADICTED, INCONCLUSIVE, NOT_DECIDABLE)
 
 #: (..., n_cols) column means -> (...) statistic.
 Statistic = Callable[[np.ndarray], np.ndarray]
@@ -87,6 +110,141 @@ def stat_mv(m: np.ndarray) -> np.ndarray:
     return metric_variance(m[..., 0], m[..., 1], m[..., 2], m[..., 3])
 
 
+# ----------------------------------------------------------------------------- Student's t
+def _beta_cf(a: float, b: float, x: float) -> float:
+    """The continued fraction ``1 + d1/(1 + d2/(1 + ...))`` of I_x(a, b) (DLMF 8.17.22),
+    evaluated by the modified Lentz method."""
+    tiny, f, c, d = 1e-300, 1.0, 1.0, 0.0
+    for j in range(1, 2000):
+        m = j // 2
+        if j % 2:
+            num = -(a + m) * (a + b + m) * x / ((a + 2 * m) * (a + 2 * m + 1))
+        else:
+            num = m * (b - m) * x / ((a + 2 * m - 1) * (a + 2 * m))
+        d = 1.0 + num * d
+        d = 1.0 / (d if abs(d) > tiny else tiny)
+        c = 1.0 + num / c
+        c = c if abs(c) > tiny else tiny
+        f *= c * d
+        if abs(c * d - 1.0) < 1e-15:
+            break
+    return f
+
+
+def _betainc(a: float, b: float, x: float) -> float:
+    """The regularised incomplete beta function I_x(a, b) (DLMF 8.17.22; the symmetry
+    ``I_x(a, b) = 1 - I_{1-x}(b, a)`` where the fraction converges slowly)."""
+    if x <= 0.0:
+        return 0.0
+    if x >= 1.0:
+        return 1.0
+    if x > (a + 1.0) / (a + b + 2.0):
+        return 1.0 - _betainc(b, a, 1.0 - x)
+    log_front = a * math.log(x) + b * math.log1p(-x) - (math.lgamma(a) + math.lgamma(b) - math.lgamma(a + b))
+    return math.exp(log_front) / (a * _beta_cf(a, b, x))
+
+
+def t_cdf(t: float, df: float) -> float:
+    """Student's t distribution function: ``1 - I_x(df/2, 1/2) / 2`` with ``x = df/(df + t^2)``
+    for t > 0 (symmetric below 0); ``df`` need not be an integer (Satterthwaite)."""
+    if not df > 0:
+        raise ValueError(f"t_cdf: df must be > 0, got {df}")
+    tail = 0.5 * _betainc(df / 2.0, 0.5, df / (df + t * t))
+    return 1.0 - tail if t > 0 else tail
+
+
+def _normal_cdf(x: float) -> float:
+    return 0.5 * math.erfc(-x / math.sqrt(2.0))
+
+
+def _t_pdf(t: float, df: float) -> float:
+    log_c = math.lgamma((df + 1) / 2) - math.lgamma(df / 2) - 0.5 * math.log(df * math.pi)
+    return math.exp(log_c - (df + 1) / 2 * math.log1p(t * t / df))
+
+
+def _invert(cdf: Callable[[float], float], pdf: Callable[[float], float], q: float) -> float:
+    """The x > 0 with ``cdf(x) = q`` (q > 1/2) for a symmetric distribution: Newton steps kept
+    inside a bisection bracket."""
+    lo, hi = 0.0, 1.0
+    while cdf(hi) < q:
+        lo, hi = hi, hi * 2.0
+        if hi > 1e12:
+            return math.inf
+    x = 0.5 * (lo + hi)
+    for _ in range(200):
+        f = cdf(x) - q
+        if f > 0:
+            hi = x
+        else:
+            lo = x
+        dens = pdf(x)
+        nxt = x - f / dens if dens > 0 else 0.5 * (lo + hi)
+        if not lo < nxt < hi:
+            nxt = 0.5 * (lo + hi)
+        if abs(nxt - x) <= 1e-13 * max(1.0, x):
+            return nxt
+        x = nxt
+    return x
+
+
+def _check_p(p: float, who: str) -> None:
+    if not 0.0 < p < 1.0:
+        raise ValueError(f"{who}: p must lie in (0, 1), got {p}")
+
+
+def normal_ppf(p: float) -> float:
+    """The standard normal quantile (``normal_ppf(0.975)`` = 1.95996...)."""
+    _check_p(p, "normal_ppf")
+    if p == 0.5:
+        return 0.0
+    x = _invert(_normal_cdf, lambda v: math.exp(-0.5 * v * v) / math.sqrt(2 * math.pi), max(p, 1 - p))
+    return x if p > 0.5 else -x
+
+
+@functools.lru_cache(maxsize=4096)
+def t_ppf(p: float, df: float) -> float:
+    """Student's t quantile ``t_{p, df}`` (e.g. t_{0.975, 2} = 4.303, t_{0.8, 2} = 1.061),
+    by inverting :func:`t_cdf`; the normal quantile for ``df`` = inf or above 1e7."""
+    _check_p(p, "t_ppf")
+    if not df > 0:
+        raise ValueError(f"t_ppf: df must be > 0, got {df}")
+    if df > 1e7:
+        return normal_ppf(p)
+    if p == 0.5:
+        return 0.0
+    x = _invert(lambda v: t_cdf(v, df), lambda v: _t_pdf(v, df), max(p, 1 - p))
+    return x if p > 0.5 else -x
+
+
+def satterthwaite_df(parts: Sequence[tuple[float, float]], total: Optional[float] = None) -> float:
+    """Satterthwaite's degrees of freedom of a sum of independent variance estimates
+    ``(v_i, df_i)``: ``total^2 / sum(v_i^2 / df_i)`` (``total`` = ``sum(v_i)`` unless given, as
+    when a term is subtracted), at least 1; inf when every ``v_i`` is 0."""
+    den = sum(v * v / d for v, d in parts if v != 0)
+    tot = sum(v for v, _ in parts) if total is None else total
+    return math.inf if den == 0 else max(1.0, tot * tot / den)
+
+
+
+
+# ----------------------------------------------------------------------------- power and decidability
+def mde(se: float, df: float, *, alpha: float = ALPHA, power: float = POWER) -> float:
+    """The minimal detectable effect of a design: ``(t_{1-alpha/2, df} + t_{power, df}) * se``
+    (a true difference this large is found with probability ``power`` by a two-sided level
+    ``alpha`` t test; normal quantiles for df = inf); NaN if ``se`` or ``df`` is NaN."""
+    if not (math.isfinite(se) and (math.isfinite(df) or df == math.inf)):
+        return math.nan
+    return (t_ppf(1.0 - alpha / 2.0, df) + t_ppf(power, df)) * se
+
+
+def decidable(n_seeds: Sequence[int], fixed: Optional[Sequence[bool]] = None) -> bool:
+    """Whether a comparison may get a verdict: every trained (non-fixed) group has at least
+    :data:`MIN_SEEDS` seeds; a fixed (deterministic) group is exempt."""
+    flags = list(fixed) if fixed is not None else [False] * len(n_seeds)
+    return bool(n_seeds) and all(f or n >= MIN_SEEDS for n, f in zip(n_seeds, flags))
+
+
+# ----------------------------------------------------------------------------- the percentile bootstrap
 @dataclass(frozen=True)
 class BootstrapResult:
     """A contrast on the full data and its percentile interval."""
