@@ -138,6 +138,12 @@ def test_digest_covers_every_result_changing_train_param(params_dict):
     d["train"]["num_workers"] = 0
     assert run_digest(parse_params(d), "A", MODEL, 1, "data", 1) == d0
     assert run_digest(base, "A", MODEL, 1, "other data", 1) != d0
+    # the base recipe counts through the run's merged recipe: a base key the model inherits moves the
+    # digest, one the model sets itself does not
+    for key, value, moves in (("lr_min", 1.0e-6, True), ("weighting", "none", False)):
+        d = yaml.safe_load(yaml.safe_dump(params_dict))
+        d["train"]["recipe"][key] = value
+        assert (run_digest(parse_params(d), "A", MODEL, 1, "data", 1) != d0) is moves, key
 
 
 @pytest.mark.slow

@@ -45,7 +45,7 @@ from .precision import (autocast_context, batch_to_channels_last, float_outputs,
                         resolve_precision, to_channels_last)
 from .provenance import source_fingerprint
 from .schedule import EarlyStop, Plateau
-from ..weighting import build_weighting, network_tasks
+from ..weighting import build_weighting, network_tasks, weighting_settings
 
 log = logging.getLogger(__name__)
 
@@ -99,11 +99,11 @@ def run_digest(params: Params, dataset_id: str, model_id: str, seed: int, cache_
     """Digest of everything that decides a run's result; it gates resuming and skipping.
 
     It covers the source code (:func:`~compact_perception.training.provenance.source_fingerprint`),
-    the torch version, ``scale``, the run's seed, every ``train`` param except the other
-    models' recipes and the settings that cannot change a result (``num_workers``,
-    ``device``), the training and validation data, and the number of processes.
+    the torch version, ``scale``, the run's seed, every ``train`` param except the recipes (the
+    run's own merged recipe is covered whole) and the settings that cannot change a result
+    (``num_workers``, ``device``), the training and validation data, and the number of processes.
     """
-    train = params.train.model_dump(exclude={"models", "num_workers", "device"})
+    train = params.train.model_dump(exclude={"models", "recipe", "num_workers", "device"})
     blob = json.dumps({
         "code": source_fingerprint(), "torch": torch.__version__, "scale": params.scale,
         "dataset": dataset_id, "model": model_id, "seed": seed, "train": train,
@@ -223,17 +223,14 @@ def _check_inputs(params: Params, model_id: str, recipe: ModelRecipe, where: str
     """Everything a run needs, checked before anything is written; returns the cache meta.
     ``where``: the params key of ``recipe`` (for the messages)."""
     from ..core.cache import CacheError, read_meta, read_split
-    from ..weighting import WEIGHTINGS
 
     compact = catalog.MODELS[model_id].group == "compact"
     if compact and recipe.de_loss is None:
         raise RunError(f"{where}.de_loss: required for a compact model (huber or smooth_l1)")
     if not compact and recipe.de_loss is not None:
         raise RunError(f"{where}.de_loss: only the compact models take it (a baseline keeps its own losses); "
-                       "remove the key")
-    if recipe.weighting not in WEIGHTINGS:
-        raise RunError(f"{where}.weighting: unknown loss weighting {recipe.weighting!r}; known: "
-                       f"{', '.join(WEIGHTINGS.keys())}")
+                       "remove the key (set it to null where the recipe inherits it from train.recipe)")
+    weighting_settings(recipe)
     meta = read_meta(cache_dir)
     n_train = len(read_split(cache_dir, "train", meta).frame_ids)
     n_val = len(read_split(cache_dir, "val", meta).frame_ids)
