@@ -12,6 +12,7 @@ from compact_perception.core.cache import CacheError
 from compact_perception.core.config import ParamsError
 from compact_perception.core.errors import RunError
 from compact_perception.study import run_arm
+from compact_perception.weighting import weighting_settings
 
 from ._common import start
 
@@ -26,6 +27,7 @@ def main(argv: list[str] | None = None) -> None:
     if args.arm not in params.study.arms:  # reads study.arms.<arm> only (the stage's params)
         sys.exit(f"error: {args.params}: study.arms has no arm {args.arm!r}; known: {sorted(params.study.arms)}")
     try:
+        weighting_settings(params.study_recipe(args.arm, args.params), args.params)  # before anything is written
         run_arm(params, args.arm, args.seed)
     except (RunError, CacheError, ParamsError, FileNotFoundError) as err:
         sys.exit(f"error: {err}")

@@ -12,9 +12,11 @@ from pathlib import Path
 
 from compact_perception.core.catalog import dataset_ids, model_ids
 from compact_perception.core.cache import CacheError
+from compact_perception.core.config import ParamsError
 from compact_perception.core.layout import run_paths
 from compact_perception.core.errors import RunError
 from compact_perception.training.train import train_run
+from compact_perception.weighting import weighting_settings
 
 from ._common import start
 
@@ -32,12 +34,13 @@ def main(argv: list[str] | None = None) -> None:
     if args.model not in params.train.models:
         raise SystemExit(f"error: params.yaml has no train.models.{args.model} recipe")
     try:
+        weighting_settings(params.train.models[args.model], args.params)  # before anything is written
         train_run(
             params, args.dataset, args.model, args.seed,
             args.cache or Path("data/cache") / args.dataset,
             args.out or run_paths(args.dataset, args.model, args.seed).run_dir,
         )
-    except (RunError, CacheError) as err:
+    except (RunError, CacheError, ParamsError) as err:
         sys.exit(f"error: {err}")
 
 

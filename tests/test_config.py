@@ -51,9 +51,12 @@ def test_impossible_values_are_named(params_dict, path, value, fragment):
 
 
 def test_unknown_model_id(params_dict):
-    params_dict["train"]["models"]["resnet"] = {"optimizer": "sgd", "lr": 0.1}
-    with pytest.raises(ParamsError, match=r"train\.models.*resnet"):
+    """A complete recipe under an id the model registry (core/catalog.py) does not know."""
+    params_dict["train"]["models"]["resnet"] = copy.deepcopy(params_dict["train"]["models"]["polarnet"])
+    with pytest.raises(ParamsError, match=r"train\.models: .*unknown model id\(s\) \['resnet'\]"):
         parse_params(params_dict)
+    del params_dict["train"]["models"]["resnet"]
+    parse_params(params_dict)
 
 
 def test_missing_file(tmp_path):
@@ -100,7 +103,7 @@ def test_exponent_without_dot_gets_a_hint(params_dict):
 
 def test_momentum_only_with_sgd(params_dict):
     d = copy.deepcopy(params_dict)
-    del d["train"]["models"]["compact_1l"]["momentum"]
+    d["train"]["models"]["compact_1l"]["momentum"] = None  # null: the recipe drops the base's momentum
     with pytest.raises(ParamsError, match=r"train\.models\.compact_1l: .*momentum: required with optimizer 'sgd'"):
         parse_params(d)
     params_dict["train"]["models"]["polarnet"]["momentum"] = 0.9
@@ -113,7 +116,6 @@ def test_momentum_only_with_sgd(params_dict):
 # (no value hides behind them). Every setting, even one that cannot change a result (worker
 # counts, the device), has its one default in params.yaml.
 ABSENT_MEANS_UNUSED = {"ModelRecipe.momentum", "ModelRecipe.betas", "ModelRecipe.eps", "ModelRecipe.max_epochs",
-                       "ModelRecipe.mgn", "ModelRecipe.gradnorm",
                        "ModelRecipe.de_loss"}  # compact models only: train stops naming the key when absent
 
 
@@ -140,12 +142,17 @@ def test_committed_params_spell_out_the_defaulted_settings(params_dict):
 
 
 def test_missing_required_key_is_named(params_dict):
-    del params_dict["train"]["models"]["compact_15l"]["weight_decay"]
+    """A key missing from the base recipe is named once, where it belongs (``train.recipe``), not
+    once per model that inherits it; one a model removes (null) is named in that model."""
+    del params_dict["train"]["recipe"]["weight_decay"]
+    params_dict["train"]["models"]["polarnet"]["lr"] = None
     del params_dict["datasets"]["B"]["seed_offset"]
     with pytest.raises(ParamsError) as exc:
         parse_params(params_dict)
     msg = str(exc.value)
-    assert "train.models.compact_15l.weight_decay: Field required" in msg
+    assert msg.startswith("params.yaml: 3 invalid parameters: "), msg
+    assert "train.recipe.weight_decay: Field required" in msg
+    assert "train.models.polarnet.lr: Field required" in msg
     assert "datasets.B.seed_offset: Field required" in msg
 
 
@@ -154,8 +161,8 @@ def test_lr_floor_not_above_lr(params_dict):
     d["train"]["models"]["polarnet"]["lr_min"] = 0.01
     with pytest.raises(ParamsError, match=r"train\.models\.polarnet: .*lr_min \(0\.01\) must not exceed lr"):
         parse_params(d)
-    params_dict["train"]["models"]["compact_15l_mgn"]["mgn"]["lr_min"] = 0.5
-    with pytest.raises(ParamsError, match=r"train\.models\.compact_15l_mgn\.mgn: .*lr_min"):
+    params_dict["train"]["recipe"]["lr_min"] = 0.5  # above every inheriting SGD recipe's lr 0.1
+    with pytest.raises(ParamsError, match=r"train\.models\.compact_1l: .*lr_min \(0\.5\) must not exceed lr"):
         parse_params(params_dict)
 
 

@@ -50,7 +50,7 @@ def _files(root: Path) -> set[Path]:
         (("train", "max_epochs", "default"), 0, "train.max_epochs"),
         (("train", "models", "gradnorm_segnet", "max_epochs"), {"default": 3, "paper": 0},
          "train.models.gradnorm_segnet.max_epochs"),
-        (("train", "models", "polarnet", "lr_min"), None, "train.models.polarnet.lr_min"),  # None: delete the key
+        (("train", "recipe", "lr_min"), None, "train.recipe.lr_min"),  # None: delete the key
         (("datasets", "A", "seed_offset"), None, "datasets.A.seed_offset"),
         (("preprocess", "fill_neighbours"), None, "preprocess.fill_neighbours"),
     ],
@@ -83,6 +83,31 @@ def test_bad_params_stop_a_stage_with_one_line(tmp_path):
     msg = _exit_message(main, ["--params", str(p), "--out", str(tmp_path / "out")])
     assert "train.batch_size" in msg and "train.max_epochs" in msg and str(p) in msg
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("stage, where, value, message", [
+    ("study", ("study", "arms", "uw", "uw", "lr"), "fast",
+     "study.arms.uw.uw.lr: Input should be a valid number (got 'fast')"),
+    ("train", ("train", "models", "compact_15l_mgn", "mgn", "alpha"), -1.0,
+     "train.models.compact_15l_mgn.mgn.alpha: Input should be greater than or equal to 0 (got -1.0)"),
+])
+def test_bad_weighting_settings_stop_the_stage_before_it_writes(tmp_path, monkeypatch, stage, where, value, message):
+    """A weighting's settings are checked by its method's schema when the stage starts (no
+    traceback from deep inside the run), naming the params file and the key."""
+    import importlib
+
+    d = repo_params_dict()
+    node = d
+    for key in where[:-1]:
+        node = node[key]
+    node[where[-1]] = value
+    p = _write_params(tmp_path / "params.yaml", d)
+    monkeypatch.chdir(tmp_path)
+    argv = ["--arm", "uw"] if stage == "study" else ["--dataset", "A", "--model", "compact_15l_mgn",
+                                                      "--cache", str(tmp_path / "no_cache")]
+    msg = _exit_message(importlib.import_module(f"pipeline.{stage}").main, [*argv, "--seed", "0", "--params", str(p)])
+    assert msg == f"error: {p}: {message}", msg
+    assert _files(tmp_path) == {Path("params.yaml")}
 
 
 # ----------------------------------------------------------------------------- nuscenes_sim

@@ -6,7 +6,7 @@ exactly right but whose top probability is below 0.5 (every pixel of the default
 top probability 0.077 on average after 3 epochs) then scores IoU_SS = 0. These tests rig the SS
 head of a one-view GradNormSegNet to output a known class map, through the same scoring calls
 that ``evaluate.evaluate_run`` (``frame_scores(compute_metrics(...))``) and the training loop's
-validation (``train.evaluate_split``) make.
+validation (``training.epoch.evaluate_split``) make.
 """
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ from torch import Tensor, nn
 from compact_perception.evaluate import frame_scores
 from compact_perception.metrics import class_confusion, class_iou, compute_metrics
 from compact_perception.models.segnet import GradNormSegNet
-from compact_perception.training.train import evaluate_split
+from compact_perception.training.epoch import evaluate_split
 
 N_CLS, S = 23, 32  # classes of the simulated sets, default resolution
 

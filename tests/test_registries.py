@@ -11,7 +11,7 @@ import yaml
 
 from compact_perception.core import catalog
 from compact_perception.core.config import DatasetsParams, load_params
-from compact_perception.weighting import WEIGHTINGS, weighting_class
+from compact_perception.weighting import WEIGHTINGS, weighting_class, weighting_settings
 
 from imports import module_file
 
@@ -45,11 +45,11 @@ def test_params_yaml_follows_the_registries():
     assert used <= set(WEIGHTINGS.keys()), used - set(WEIGHTINGS.keys())
     # every registered method is studied or trained somewhere (a new method = file + params entry)
     assert set(WEIGHTINGS.keys()) - {"none"} <= used, set(WEIGHTINGS.keys()) - used
-    for arm in p.study.arm_ids:  # each arm's settings pass its method's own schema
-        recipe = p.study_recipe(arm)
+    # every recipe's and every arm's settings pass its method's own schema (what the stages check first)
+    for recipe in [*p.train.models.values(), *(p.study_recipe(arm) for arm in p.study.arm_ids)]:
+        settings = weighting_settings(recipe)
         schema = weighting_class(recipe.weighting).params_model
-        if schema is not None:
-            schema.model_validate(recipe.section(recipe.weighting))
+        assert (settings is None) == (schema is None) and (schema is None or isinstance(settings, schema))
 
 
 def test_every_weighting_declares_label_and_schema():

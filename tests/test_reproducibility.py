@@ -138,6 +138,12 @@ def test_digest_covers_every_result_changing_train_param(params_dict):
     d["train"]["num_workers"] = 0
     assert run_digest(parse_params(d), "A", MODEL, 1, "data", 1) == d0
     assert run_digest(base, "A", MODEL, 1, "other data", 1) != d0
+    # the base recipe counts through the run's merged recipe: a base key the model inherits moves the
+    # digest, one the model sets itself does not
+    for key, value, moves in (("lr_min", 1.0e-6, True), ("weighting", "none", False)):
+        d = yaml.safe_load(yaml.safe_dump(params_dict))
+        d["train"]["recipe"][key] = value
+        assert (run_digest(parse_params(d), "A", MODEL, 1, "data", 1) != d0) is moves, key
 
 
 @pytest.mark.slow
@@ -148,12 +154,33 @@ def test_compact_run_is_exported_as_onnx_matching_pytorch(reference, tmp_path_fa
     assert summary["onnx"]["max_abs_diff"] < 1e-4
 
 
-def test_source_fingerprint_covers_the_whole_package_and_the_stage_modules():
-    """The training shortcut's code digest reads every .py of compact_perception (not only its
-    own subpackage) and of pipeline/."""
-    from compact_perception.training.provenance import PACKAGE_ROOT
+def test_source_fingerprint_covers_the_whole_package_and_the_stage_modules(tmp_path, monkeypatch):
+    """The training shortcut's code digest reads every .py of compact_perception (its subpackages
+    too, not only its own) and of pipeline/: editing any of them in a copy of the tree changes it."""
+    import shutil
 
     repo = Path(__file__).resolve().parents[1]
-    assert PACKAGE_ROOT == repo / "src" / "compact_perception"
-    assert (PACKAGE_ROOT / "metrics.py").is_file() and (PACKAGE_ROOT / "core" / "config.py").is_file()
-    assert (PACKAGE_ROOT.parent.parent / "pipeline" / "train.py").is_file()
+    assert provenance.PACKAGE_ROOT == repo / "src" / "compact_perception"
+    skip = shutil.ignore_patterns("__pycache__")
+    package = tmp_path / "src" / "compact_perception"
+    shutil.copytree(provenance.PACKAGE_ROOT, package, ignore=skip)
+    shutil.copytree(repo / "pipeline", tmp_path / "pipeline", ignore=skip)
+
+    def fingerprint() -> str:
+        provenance.source_fingerprint.cache_clear()
+        return provenance.source_fingerprint()
+
+    try:
+        real = fingerprint()
+        monkeypatch.setattr(provenance, "PACKAGE_ROOT", package)
+        assert fingerprint() == real  # the copy is read like the tree itself
+        for edited in (package / "core" / "config.py", package / "weighting" / "uw.py", package / "metrics.py",
+                       tmp_path / "pipeline" / "train.py"):
+            text = edited.read_text()
+            edited.write_text(text + "\n# edited\n")
+            assert fingerprint() != real, edited.relative_to(tmp_path)
+            edited.write_text(text)
+            assert fingerprint() == real
+    finally:
+        monkeypatch.undo()
+        provenance.source_fingerprint.cache_clear()

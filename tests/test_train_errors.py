@@ -80,7 +80,7 @@ def test_checkpoint_bytes_do_not_depend_on_the_temporary_name(tmp_path):
     torch.save given a path names the archive's root folder after the file, so the bytes must
     be written through an open file to be the same on every run."""
     from compact_perception.core import io
-    from compact_perception.training.train import _save
+    from compact_perception.training.checkpoint import save
 
     state = {"model": {"w": torch.arange(6.0).reshape(2, 3)}, "epoch": 1}
     written = []
@@ -89,7 +89,7 @@ def test_checkpoint_bytes_do_not_depend_on_the_temporary_name(tmp_path):
         final.parent.mkdir()
         with io.atomic_path(final) as tmp:
             assert tmp.name != final.name
-            _save(state, tmp, final)
+            save(state, tmp, final)
         written.append(final.read_bytes())
     assert written[0] == written[1]
     assert torch.equal(torch.load(tmp_path / "a" / "best.pt")["model"]["w"], state["model"]["w"])

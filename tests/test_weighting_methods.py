@@ -16,14 +16,15 @@ import torch
 from pydantic import ValidationError
 from torch import nn
 
-from compact_perception.core.config import GradNormParams, MgnParams
 from compact_perception.weighting import (
     WEIGHTINGS,
     CAGradParams,
     CAGradWeighting,
     DWAParams,
     DWAWeighting,
+    GradNormParams,
     GradNormWeighting,
+    MgnParams,
     MGNWeighting,
     NoWeighting,
     PCGradParams,
@@ -147,6 +148,44 @@ def test_params_schemas(schema, good, bad) -> None:
     for b in bad:
         with pytest.raises(ValidationError):
             schema.model_validate(b)
+
+
+@pytest.mark.parametrize("where, value, message", [
+    (("study", "arms", "uw", "uw", "lr"), "fast",
+     "params.yaml: study.arms.uw.uw.lr: Input should be a valid number (got 'fast')"),
+    (("study", "arms", "uw", "uw"), {}, "params.yaml: study.arms.uw.uw.lr: Field required"),
+    (("train", "models", "compact_15l_mgn", "mgn", "lr_min"), 0.5,
+     "params.yaml: train.models.compact_15l_mgn.mgn: Value error, lr_min (0.5) must not exceed lr (0.1)"),
+    (("train", "models", "gradnorm_segnet", "gradnorm", "beta"), 1.0,
+     "params.yaml: train.models.gradnorm_segnet.gradnorm.beta: unknown key (not in the schema)"),
+    (("train", "models", "polarnet", "none"), {"x": 1},
+     "params.yaml: train.models.polarnet.none: weighting 'none' takes no settings; remove the key"),
+    (("train", "models", "polarnet", "weighting"), "unknown",
+     "params.yaml: train.models.polarnet.weighting: unknown loss weighting 'unknown'; known: "),
+])
+def test_weighting_settings_are_checked_by_their_method_schema(params_dict, where, value, message) -> None:
+    """A recipe's section passes the params schema (it is a mapping named after the weighting) and
+    is checked by its method's own schema when a stage starts: one line naming the key."""
+    from compact_perception.core.config import ParamsError, parse_params
+    from compact_perception.weighting import weighting_settings
+
+    node = params_dict
+    for key in where[:-1]:
+        node = node[key]
+    node[where[-1]] = value
+    p = parse_params(params_dict)
+    recipe = p.study_recipe(where[2]) if where[0] == "study" else p.train.models[where[2]]
+    with pytest.raises(ParamsError) as exc:
+        weighting_settings(recipe)
+    assert str(exc.value).startswith(message) and "\n" not in str(exc.value), str(exc.value)
+
+
+def test_a_section_of_another_method_is_an_error_naming_the_key(params_dict) -> None:
+    from compact_perception.core.config import ParamsError, parse_params
+
+    params_dict["train"]["models"]["compact_15l_mgn"]["uw"] = {"lr": 0.025}
+    with pytest.raises(ParamsError, match=r"^params\.yaml: train\.models\.compact_15l_mgn\.uw: unknown key"):
+        parse_params(params_dict)
 
 
 # ----------------------------------------------------------------------------- uncertainty weighting

@@ -5,8 +5,14 @@ Types are strict: a bool or a string never passes as a number (``batch_size: tru
 error, not 1), a YAML int passes where a float is expected. Every setting that can change a
 result is required, so params.yaml spells out every value a result depends on and no default
 hides in code; only settings that cannot change a result (worker counts, the device
-preference) have defaults. An optional section or override (``mgn``, ``gradnorm``, a model's
-``max_epochs``) is absent when not used.
+preference) have defaults. An optional override (a model's ``max_epochs``, an optimiser's own
+settings) is absent when not used.
+
+A model's training recipe is ``train.recipe`` (the base every model shares) merged with
+``train.models.<id>`` (what that model changes): :func:`merge_recipe`, applied by the schema, so
+``Params.train.models[id]`` is the whole recipe. A recipe's loss-weighting settings sit in a
+section named after its weighting (``mgn: {...}``), validated by that method's own schema
+(``compact_perception.weighting``), which this module does not import (no torch here).
 
 ``scale`` is the one switch between the default scale (a 2-core CPU, about 30 min for
 the whole pipeline) and the paper's scale: every value that differs between the two is
@@ -15,18 +21,22 @@ written as ``{default: ..., paper: ...}`` (a :class:`Scaled`) and resolved with
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Generic, Literal, Optional, TypeVar
+from typing import Any, Callable, Generic, Literal, Optional, TypeVar
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, ValidatorFunctionWrapHandler,
+                      field_validator, model_validator)
+from pydantic_core import InitErrorDetails, PydanticCustomError
 
+from . import catalog
 
 T = TypeVar("T")
 
 TOWNS = ("town01", "town02", "town03", "town04", "town05")
-# Model and dataset ids live in the registries (compact_perception.core.catalog), which this module does
-# not import: the data stages read params too, and a new model must not rerun them.
+# Model and dataset ids live in the registries (compact_perception.core.catalog, no torch): the recipes
+# of train.models must be of registered models.
 ScaleName = Literal["default", "paper"]
 
 
@@ -174,10 +184,7 @@ class SimDatasetParams(Strict):
     @field_validator("frames")
     @classmethod
     def _frames(cls, v: Scaled[int]) -> Scaled[int]:
-        for name in ("default", "paper"):
-            if getattr(v, name) < 5:
-                raise ValueError(f"frames.{name} must be at least 5 (at least one per split), got {getattr(v, name)}")
-        return v
+        return _scaled_at_least(v, 5)  # one frame per split at least
 
     @model_validator(mode="after")
     def _authors(self) -> "SimDatasetParams":
@@ -227,33 +234,67 @@ class PreprocessParams(Strict):
 
 
 # ----------------------------------------------------------------------------- training
-class MgnParams(Strict):
-    """Section III-C, Algorithm 1."""
-
-    alpha: float = Field(ge=0.0)
-    lr: float = Field(gt=0.0)
-    lr_min: float = Field(gt=0.0)
-    authors_mode: bool = Field(description="reproduce the authors' public code (SPEC 7)")
-
-    @model_validator(mode="after")
-    def _lr_floor(self) -> "MgnParams":
-        if self.lr_min > self.lr:
-            raise ValueError(f"lr_min ({self.lr_min}) must not exceed lr ({self.lr})")
-        return self
+def check_lr_floor(lr: float, lr_min: float) -> None:
+    """The plateau halving's floor (section IV-D; MGN's weight lr too) must not exceed the lr it
+    starts from."""
+    if lr_min > lr:
+        raise ValueError(f"lr_min ({lr_min}) must not exceed lr ({lr})")
 
 
-class GradNormParams(Strict):
-    """Original per-step GradNorm (Chen et al., ICML 2018)."""
+def _plain(value: Any) -> Any:
+    """``value`` as plain YAML data (dicts and lists), whatever mapping type held it."""
+    if isinstance(value, Mapping):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_plain(v) for v in value]
+    return value
 
-    alpha: float = Field(ge=0.0)
-    lr: float = Field(gt=0.0)
+
+def merge_recipe(base: Mapping[str, Any], changes: Mapping[str, Any]) -> dict[str, Any]:
+    """The recipe ``base`` with ``changes`` applied: a key of ``changes`` replaces the base's, a
+    null removes it (``momentum: null`` for an Adam recipe), and a new ``weighting`` drops the
+    base's section of the weighting it replaces. Used for ``train.recipe`` + ``train.models.<id>``
+    and for a study arm on its base model's recipe."""
+    merged = _plain(base)
+    old = merged.get("weighting")
+    if "weighting" in changes and isinstance(old, str) and changes["weighting"] != old:
+        merged.pop(old, None)
+    merged.update(_plain(changes))
+    return {k: v for k, v in merged.items() if v is not None}
+
+
+def _error(key: str, value: Any, message: str) -> InitErrorDetails:
+    """A validation error at ``key`` (a model validator's errors sit at the model otherwise)."""
+    return InitErrorDetails(type=PydanticCustomError("recipe_key", message), loc=(key,), input=value)
+
+
+def _from_base(key: str) -> str:
+    """The params key of the base recipe's ``key``."""
+    return f"train.recipe.{key}"
+
+
+def _inherited(merged: Mapping[str, Any], changes: Mapping[str, Any], source: Callable[[str], str]) -> dict[str, str]:
+    """The keys of a merged recipe that its base supplies, each with the params key holding its value."""
+    return {k: source(k) for k in merged if k not in changes}
+
+
+def _in_params(loc: tuple, key: str, inherited: Mapping[str, str]) -> tuple:
+    """Location ``loc`` inside the recipe read at params key ``key`` (``""``: not read from params),
+    as the params key that holds the value there."""
+    if loc and loc[0] in inherited:
+        return (*inherited[loc[0]].split("."), *loc[1:])
+    return (*(key.split(".") if key else ()), *loc)
 
 
 class ModelRecipe(Strict):
-    """One model's training recipe (``train.models.<id>``). ``weighting`` names a loss weighting of
-    the registry (``compact_perception.weighting.WEIGHTINGS``); its settings sit in a section of
-    the same name (``mgn: {...}``), checked against that method's own schema when the run starts
-    (MGN's and GradNorm's here already). Only the named method's section is allowed."""
+    """One model's training recipe (``train.recipe`` merged with ``train.models.<id>``).
+    ``weighting`` names a loss weighting of the registry (``compact_perception.weighting.WEIGHTINGS``);
+    its settings sit in a section of the same name (``mgn: {...}``), checked against that method's
+    own schema when the training or study stage starts (``weighting.weighting_settings``). Only
+    the named method's section is allowed.
+
+    A recipe read from params knows where each of its values is written (:meth:`key_of`): its
+    own key, or ``train.recipe`` for what it inherits (error messages and the params audit use it)."""
 
     model_config = ConfigDict(extra="allow", frozen=True, strict=True)
 
@@ -277,8 +318,9 @@ class ModelRecipe(Strict):
     weight_decay: float = Field(ge=0.0)
     weighting: str = Field(min_length=1, description="a loss weighting id (weighting.WEIGHTINGS)")
     max_epochs: Optional[Scaled[int]] = Field(None, description="overrides train.max_epochs for this model")
-    mgn: Optional[MgnParams] = None
-    gradnorm: Optional[GradNormParams] = None
+
+    _key: str = PrivateAttr("")                                  # the params key of this recipe
+    _inherited: dict[str, str] = PrivateAttr(default_factory=dict)  # key -> where its value is written
 
     @field_validator("max_epochs")
     @classmethod
@@ -286,7 +328,7 @@ class ModelRecipe(Strict):
         return _scaled_at_least(v, 1)
 
     @model_validator(mode="after")
-    def _weighting(self) -> "ModelRecipe":
+    def _optimizer_settings(self) -> "ModelRecipe":
         if self.optimizer == "sgd" and self.momentum is None:
             raise ValueError("momentum: required with optimizer 'sgd' (the paper's 0.9)")
         if self.optimizer == "adam" and self.momentum is not None:
@@ -297,30 +339,37 @@ class ModelRecipe(Strict):
             raise ValueError("betas/eps: not used by optimizer 'sgd'; remove the keys")
         if self.betas is not None and (len(self.betas) != 2 or not all(0.0 <= b < 1.0 for b in self.betas)):
             raise ValueError(f"betas: expected two numbers in [0, 1), got {self.betas}")
-        if self.lr_min > self.lr:
-            raise ValueError(f"lr_min ({self.lr_min}) must not exceed lr ({self.lr})")
-        if self.weighting == "mgn" and self.mgn is None:
-            raise ValueError("weighting 'mgn' needs an 'mgn' section")
-        if self.weighting == "gradnorm" and self.gradnorm is None:
-            raise ValueError("weighting 'gradnorm' needs a 'gradnorm' section")
-        for key in ("mgn", "gradnorm"):
-            if getattr(self, key) is not None and self.weighting != key:
-                raise ValueError(f"{key}: a section for weighting {key!r}, but the recipe's weighting is "
-                                 f"{self.weighting!r}; remove it")
+        check_lr_floor(self.lr, self.lr_min)
+        return self
+
+    @model_validator(mode="after")
+    def _weighting_section(self) -> "ModelRecipe":
+        """Besides the schema's keys, only the section named by ``weighting``, a mapping; each error
+        is placed at its key."""
+        errors = []
         for key, value in (self.model_extra or {}).items():
             if key != self.weighting:
-                raise ValueError(f"{key}: unknown key (not in the schema, and not the section of this recipe's "
-                                 f"weighting {self.weighting!r})")
-            if not isinstance(value, dict):
-                raise ValueError(f"{key}: expected a mapping of the {key!r} weighting's settings, got {value!r}")
+                errors.append(_error(key, value, "unknown key (not in the schema, and not the settings section "
+                                                 "of the recipe's weighting)"))
+            elif not isinstance(value, dict):
+                errors.append(_error(key, value, "expected a mapping of the weighting's settings"))
+        if errors:
+            raise ValidationError.from_exception_data(type(self).__name__, errors)
         return self
 
     def section(self, name: str) -> dict:
         """The settings section ``name`` (the weighting's own params), ``{}`` when absent."""
-        typed = getattr(self, name, None) if name in ("mgn", "gradnorm") else None
-        if typed is not None:
-            return typed.model_dump()
         return dict((self.model_extra or {}).get(name) or {})
+
+    def key_of(self, name: str) -> str:
+        """The params key that holds this recipe's value of ``name`` (``train.recipe.lr`` for an
+        inherited lr); just ``name`` for a recipe not read from params."""
+        return ".".join(_in_params((name,), self._key, self._inherited))
+
+    def placed(self, key: str, inherited: Mapping[str, str]) -> "ModelRecipe":
+        """This recipe, recorded as read from params key ``key``, its ``inherited`` keys from elsewhere."""
+        self._key, self._inherited = key, dict(inherited)
+        return self
 
 
 class TrainParams(Strict):
@@ -342,12 +391,37 @@ class TrainParams(Strict):
                     "natively (precision.resolve_precision); anything but fp32 lifts the CPU kernel pins")
     channels_last: bool = Field(description="NHWC memory format for the convolutions")
     compile: bool = Field(description="torch.compile the forward (falls back to eager with one warning)")
-    models: dict[str, ModelRecipe]
+    recipe: dict[str, Any] = Field(description="the base recipe: every key of a model's recipe that "
+                                   "train.models.<id> does not set")
+    models: dict[str, ModelRecipe] = Field(description="model id -> what its recipe changes in `recipe` (null "
+                                           "removes a key); read here as the merged recipe (merge_recipe)")
+
+    @model_validator(mode="wrap")
+    @classmethod
+    def _merge_recipes(cls, data: Any, handler: ValidatorFunctionWrapHandler) -> "TrainParams":
+        """Each ``models.<id>`` validated as ``recipe`` merged with it, knowing which keys it inherits."""
+        base, changes = (data.get("recipe"), data.get("models")) if isinstance(data, dict) else (None, None)
+        if not isinstance(base, dict) or not isinstance(changes, dict):
+            return handler(data)  # the field errors name what is missing or wrong
+        merged = {m: merge_recipe(base, c) if isinstance(c, dict) else c for m, c in changes.items()}
+        train = handler({**data, "models": merged})
+        for m, recipe in train.models.items():
+            recipe.placed(f"train.models.{m}", _inherited(merged[m], changes[m], _from_base))
+        return train
 
     @field_validator("max_epochs")
     @classmethod
     def _epochs(cls, v: Scaled[int]) -> Scaled[int]:
         return _scaled_at_least(v, 1)
+
+    @field_validator("models", mode="before")
+    @classmethod
+    def _registered(cls, v: Any) -> Any:
+        unknown = [m for m in v if m not in catalog.MODELS] if isinstance(v, dict) else []
+        if unknown:
+            raise ValueError(f"unknown model id(s) {unknown}; registered (core/catalog.py): "
+                             f"{list(catalog.model_ids())}")
+        return v
 
 
 
@@ -443,17 +517,19 @@ class Params(Strict):
             raise ValueError(f"model_ids: no recipe train.models.<id> for {missing}")
         return self
 
-    def study_recipe(self, arm: str) -> ModelRecipe:
-        """The recipe of study arm ``arm``: ``study.base_model``'s recipe with the arm's weighting."""
+    def study_recipe(self, arm: str, source: str = "params.yaml") -> ModelRecipe:
+        """The recipe of study arm ``arm``: ``study.base_model``'s recipe with the arm's weighting and
+        its section (:func:`merge_recipe`); ``source`` names the params file in errors."""
         if arm not in self.study.arms:
-            raise ParamsError(f"study.arms: no arm {arm!r}; known: {sorted(self.study.arms)}")
-        base = self.train.models[self.study.base_model].model_dump(exclude_none=True)
-        for key in ("mgn", "gradnorm", *(self.train.models[self.study.base_model].model_extra or {})):
-            base.pop(key, None)
+            raise ParamsError(f"{source}: study.arms: no arm {arm!r}; known: {sorted(self.study.arms)}")
+        key, base, spec = f"study.arms.{arm}", self.train.models[self.study.base_model], _plain(self.study.arms[arm])
+        merged = merge_recipe(base.model_dump(exclude_none=True), spec)
+        inherited = _inherited(merged, spec, base.key_of)
         try:
-            return ModelRecipe.model_validate({**base, **self.study.arms[arm]})
+            recipe = ModelRecipe.model_validate(merged)
         except ValidationError as err:
-            raise ParamsError(_format(err, f"params.yaml: study.arms.{arm}")) from None
+            raise ParamsError(_format(err, source, lambda loc: _in_params(loc, key, inherited))) from None
+        return recipe.placed(key, inherited)
 
     def seeds_of(self, group: str) -> list[int]:
         """The training seeds of a model group (``catalog.ModelInfo.group``): ``seeds`` for
@@ -486,11 +562,13 @@ def _one_line(text: str) -> str:
     return " ".join(str(text).split())
 
 
-def _format(err: ValidationError, source: str) -> str:
-    """One line: ``<file>: <key>: <problem> (got <value>)``, problems joined by ``; ``."""
-    problems = []
+def _format(err: ValidationError, source: str, place: Callable[[tuple], tuple] = lambda loc: loc) -> str:
+    """One line: ``<file>: <key>: <problem> (got <value>)``, problems joined by ``; ``. ``place``
+    maps an error's location to the params key that holds the value (a merged recipe's inherited
+    keys sit in ``train.recipe``); a problem found at several places is named once."""
+    problems: list[str] = []
     for e in err.errors():
-        key = ".".join(str(p) for p in e["loc"]) or "<root>"
+        key = ".".join(str(p) for p in place(tuple(e["loc"]))) or "<root>"
         msg = e["msg"]
         if e["type"] == "extra_forbidden":
             msg = "unknown key (not in the schema)"
@@ -498,9 +576,30 @@ def _format(err: ValidationError, source: str) -> str:
         got_s = "" if e["type"] in ("extra_forbidden", "missing") or isinstance(got, dict) else f" (got {got!r})"
         if e["type"] == "float_type" and isinstance(got, str) and _is_number(got):
             got_s += " (YAML reads an exponent without a dot as text: write e.g. 1.0e-4)"
-        problems.append(_one_line(f"{key}: {msg}{got_s}"))
+        problem = _one_line(f"{key}: {msg}{got_s}")
+        if problem not in problems:
+            problems.append(problem)
     head = f"{source}: " if len(problems) == 1 else f"{source}: {len(problems)} invalid parameters: "
     return head + "; ".join(problems)
+
+
+def format_error(err: ValidationError, source: str, key: str = "") -> str:
+    """:func:`_format` for a section validated on its own (a weighting's settings) at params key ``key``."""
+    return _format(err, source, lambda loc: _in_params(loc, key, {}))
+
+
+def _recipe_place(data: Any) -> Callable[[tuple], tuple]:
+    """Where an error inside ``train.models.<id>`` lies in the raw params ``data``: at
+    ``train.recipe.<key>`` for a key that model does not set (:class:`TrainParams`'s merge)."""
+    def place(loc: tuple) -> tuple:
+        train = data.get("train") if isinstance(data, dict) else None
+        if len(loc) < 4 or loc[:2] != ("train", "models") or not isinstance(train, dict):
+            return loc
+        changes = (train.get("models") or {}).get(loc[2])
+        if isinstance(changes, dict) and loc[3] not in changes:
+            return ("train", "recipe", *loc[3:])
+        return loc
+    return place
 
 
 def parse_params(data: dict, source: str = "params.yaml") -> Params:
@@ -510,7 +609,7 @@ def parse_params(data: dict, source: str = "params.yaml") -> Params:
     try:
         return Params.model_validate(data)
     except ValidationError as err:
-        raise ParamsError(_format(err, source)) from None
+        raise ParamsError(_format(err, source, _recipe_place(data))) from None
 
 
 def load_params(path: str | Path = "params.yaml") -> Params:

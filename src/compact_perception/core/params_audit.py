@@ -6,13 +6,19 @@ stage reads, and the stage appends ``{"stage": ..., "argv": ..., "keys": [...]}`
 line to ``<file>`` when it exits. The end-to-end test runs ``dvc repro`` with it and compares
 each stage's keys with the ``params:`` that ``dvc.yaml`` lists for it. Without the variable
 nothing is wrapped; the audit never changes a result.
+
+A value read from a model that says where its values are written (``key_of(name)``: a merged
+recipe of ``train.models.<id>`` inherits keys of ``train.recipe``) records that key too, and a
+method of a params model runs on the view, so what it reads is recorded.
 """
 from __future__ import annotations
 
 import atexit
+import inspect
 import json
 import os
 import sys
+import types
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -34,6 +40,14 @@ def _join(path: str, key: str) -> str:
     return f"{path}.{key}" if path else key
 
 
+def _read(log: _Log, model: BaseModel, path: str, name: str) -> None:
+    """Record that ``name`` of ``model`` (at ``path``) was read, and where its value is written."""
+    log.add(_join(path, name))
+    key_of = getattr(model, "key_of", None)
+    if callable(key_of):
+        log.add(key_of(name))
+
+
 def _wrap(value: Any, path: str, log: _Log) -> Any:
     if isinstance(value, BaseModel):
         return ParamsView(value, path, log)
@@ -45,8 +59,9 @@ def _wrap(value: Any, path: str, log: _Log) -> Any:
 class ParamsView:
     """Read-only view of a params model that records each key read (``a.b.c``).
 
-    Reading a field records its path; ``model_dump`` records every field it dumps;
-    anything else (``Scaled.at``) is passed through, its path already recorded.
+    Reading a field records its path; ``model_dump`` records every field (and extra key) it
+    dumps; a public method of the model's own class (``Scaled.at``, ``Params.study_recipe``) runs
+    with this view as ``self``; anything else is passed through.
     """
 
     def __init__(self, model: BaseModel, path: str, log: _Log) -> None:
@@ -58,15 +73,18 @@ class ParamsView:
         model, path, log = self._model, self._path, self._log
         value = getattr(model, name)
         if name in type(model).model_fields:
-            log.add(_join(path, name))
+            _read(log, model, path, name)
             return _wrap(value, _join(path, name), log)
         if name == "model_dump":
             def dump(*args: Any, exclude: Any = None, **kwargs: Any) -> Any:
-                for field in type(model).model_fields:
-                    if not exclude or field not in exclude:
-                        log.add(_join(path, field))
+                for key in (*type(model).model_fields, *(model.model_extra or {})):
+                    if not exclude or key not in exclude:
+                        _read(log, model, path, key)
                 return model.model_dump(*args, exclude=exclude, **kwargs)
             return dump
+        method = inspect.getattr_static(type(model), name, None)
+        if inspect.isfunction(method) and not name.startswith("_") and name not in vars(BaseModel):
+            return types.MethodType(method, self)
         return value
 
     def __setattr__(self, name: str, value: Any) -> None:

@@ -1,7 +1,11 @@
 """Training (paper section IV-D), one DVC dependency for the training stages
 (``src/compact_perception/training``):
 
-- ``train``        the training run: loop, validation, checkpoints, resume, dvclive logs
+- ``train``        the training run (``train_run``) as named steps: setup, resume, epoch end,
+                   checkpoint, finish; the run's seed and digest; the dvclive logs
+- ``state``        ``RunSpec`` / ``RunState``: the one object the steps share
+- ``epoch``        one epoch: the training steps (the weighting's step protocol) and validation
+- ``checkpoint``   ``best.pt`` / ``last.pt``: atomic writes, reading back for a resume, restore
 - ``schedule``     the learning-rate plateau rules and early stopping
 - ``provenance``   the code fingerprint in a run's digest (no shortcut outlives a code change)
 - ``precision``    mixed precision, channels-last and ``torch.compile`` (issue 15's fast path)

@@ -8,7 +8,8 @@ package imports every module, so a new method is one new file plus its params.ya
 2020), ``cagrad`` (Liu et al. 2021), ``single`` (one-hot weights: the study's single-task
 reference); build one with :func:`build_weighting`. Each class has a
 ``label`` and a ``params_model`` (the schema of its recipe section, named like its id, e.g.
-``uw: {lr: ...}``; ``None`` for static / none).
+``uw: {lr: ...}``, defined in the method's own module; ``None`` for static / none);
+:func:`weighting_settings` checks a recipe's section against it when a stage starts.
 
 Interface (:class:`~.base.LossWeighting`)
 ----------------------------------------
@@ -48,7 +49,7 @@ Step protocol (trainer, every training step; ``step`` counts 0..n_steps-1 within
 - mgn: step 0 records L_i(0) (detached); step ``n_steps - 1`` (the same step when n_steps == 1)
   does one update of w (G_i, r_i, detached targets, L_MGN, SGD step, positive floor, sum w = T).
   No network parameter or ``.grad`` is touched (``torch.autograd.grad`` with ``retain_graph``).
-  ``authors_mode`` (MgnParams): second-order terms of L_MGN are accumulated into the network
+  ``authors_mode`` (:class:`~.mgn.MgnParams`): second-order terms of L_MGN are accumulated into the network
   ``.grad`` and w also gets ``dL_total/dw`` (see :class:`~.mgn.MGNWeighting`).
 - gradnorm: L_i(0) from the very first step; one update of w at every step (Adam).
 - uw: ``sum_i exp(-s_i) L_i + s_i``; ``backward`` also takes one Adam step on s; w = exp(-s).
@@ -64,9 +65,10 @@ from __future__ import annotations
 
 from typing import Any, Sequence
 
+from pydantic import ValidationError
 from torch import nn
 
-from ..core.config import ModelRecipe
+from ..core.config import ModelRecipe, ParamsError, Strict, format_error
 from ..core.registry import import_submodules
 from .base import WEIGHTINGS, LossWeighting, register, shared_weights
 
@@ -76,8 +78,8 @@ import_submodules(__name__, __path__)
 
 from .cagrad import CAGradParams, CAGradWeighting  # noqa: E402
 from .dwa import DWAParams, DWAWeighting  # noqa: E402
-from .gradnorm import GradNormWeighting  # noqa: E402
-from .mgn import GradNormCore, MGNWeighting  # noqa: E402
+from .gradnorm import GradNormParams, GradNormWeighting  # noqa: E402
+from .mgn import GradNormCore, MGNWeighting, MgnParams  # noqa: E402
 from .pcgrad import PCGradParams, PCGradWeighting  # noqa: E402
 from .single import SingleTaskParams, SingleTaskWeighting  # noqa: E402
 from .static import NoWeighting, StaticWeighting  # noqa: E402
@@ -89,11 +91,14 @@ __all__ = [
     "build_weighting",
     "network_tasks",
     "weighting_class",
+    "weighting_settings",
     "LossWeighting",
     "StaticWeighting",
     "NoWeighting",
     "MGNWeighting",
+    "MgnParams",
     "GradNormWeighting",
+    "GradNormParams",
     "GradNormCore",
     "UncertaintyWeighting",
     "UWParams",
@@ -112,6 +117,25 @@ __all__ = [
 def weighting_class(key: str) -> type[LossWeighting]:
     """The class registered as ``key`` (its ``label``, ``params_model`` and ``from_recipe``)."""
     return WEIGHTINGS[key]
+
+
+def weighting_settings(recipe: ModelRecipe, source: str = "params.yaml") -> Strict | None:
+    """The settings of the recipe's weighting, its section validated by the method's ``params_model``
+    (``None`` for a method without settings), checked before a stage writes anything. Bad input is a
+    :class:`~compact_perception.core.config.ParamsError` naming the key in ``source``, e.g.
+    ``params.yaml: study.arms.uw.uw.lr: Input should be a valid number (got 'fast')``."""
+    if recipe.weighting not in WEIGHTINGS:
+        raise ParamsError(f"{source}: {recipe.key_of('weighting')}: unknown loss weighting {recipe.weighting!r}; "
+                          f"known: {', '.join(WEIGHTINGS.keys())}")
+    schema, key = WEIGHTINGS[recipe.weighting].params_model, recipe.key_of(recipe.weighting)
+    if schema is None:
+        if recipe.section(recipe.weighting):
+            raise ParamsError(f"{source}: {key}: weighting {recipe.weighting!r} takes no settings; remove the key")
+        return None
+    try:
+        return schema.model_validate(recipe.section(recipe.weighting))
+    except ValidationError as err:
+        raise ParamsError(format_error(err, source, key)) from None
 
 
 def network_tasks(recipe: ModelRecipe, tasks: Sequence[str]) -> tuple[str, ...]:

@@ -179,11 +179,7 @@ def shared_weights(model: nn.Module, names: Sequence[str]) -> list[nn.Parameter]
 def recipe_params(recipe: Any, name: str, schema: type[Strict]) -> Any:
     """The weighting section ``name`` of a recipe (``ModelRecipe.section``), validated by
     ``schema``; a clear error when the recipe has none."""
-    raw = recipe.section(name) if hasattr(recipe, "section") else getattr(recipe, name, None)
-    if isinstance(raw, schema):
-        return raw
-    if hasattr(raw, "model_dump"):
-        raw = raw.model_dump()
+    raw = recipe.section(name)
     if not raw:
         raise ValueError(f"weighting {name!r} needs a {name!r} section in the recipe")
     return schema.model_validate(raw)

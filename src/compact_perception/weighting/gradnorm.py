@@ -4,13 +4,21 @@ from __future__ import annotations
 from typing import Any, Literal, Mapping, Sequence
 
 import torch
-from torch import Tensor, nn
+from pydantic import Field
+from torch import Tensor
 
-from ..core.config import GradNormParams, ModelRecipe
+from ..core.config import Strict
 from .base import register
 from .mgn import GradNormCore
 
-__all__ = ["GradNormWeighting"]
+__all__ = ["GradNormParams", "GradNormWeighting"]
+
+
+class GradNormParams(Strict):
+    """``gradnorm: {alpha, lr}``: the original per-step GradNorm (Chen et al., ICML 2018)."""
+
+    alpha: float = Field(ge=0.0)
+    lr: float = Field(gt=0.0)
 
 
 @register("gradnorm")
@@ -36,15 +44,6 @@ class GradNormWeighting(GradNormCore):
             self.opt = torch.optim.SGD([self._param], lr=self.lr)
         else:
             raise ValueError(f"unknown GradNorm optimizer {optimizer!r}; known: adam, sgd")
-
-    @classmethod
-    def from_recipe(cls, recipe: ModelRecipe, tasks: Sequence[str], model: nn.Module | None = None,
-                    **kw: Any) -> "GradNormWeighting":
-        p = recipe.gradnorm
-        if p is None:
-            raise ValueError("weighting 'gradnorm' needs a 'gradnorm' section in the recipe")
-        shared = model.shared_layers() if model is not None else None
-        return cls(tasks, shared, alpha=p.alpha, lr=p.lr, **kw)
 
     def on_epoch_end(self, improved: bool) -> None:
         """Constant weight lr (original GradNorm); only the bad-epoch count is kept."""

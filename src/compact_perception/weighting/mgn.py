@@ -10,11 +10,27 @@ from typing import Any, Mapping, Sequence
 import torch
 from torch import Tensor, nn
 
-from ..core.config import MgnParams, ModelRecipe
-from ..training.schedule import PlateauRule, plateau_due
-from .base import LossWeighting, register, shared_weights
+from pydantic import Field, model_validator
 
-__all__ = ["GradNormCore", "MGNWeighting", "full_precision"]
+from ..core.config import ModelRecipe, Strict, check_lr_floor
+from ..training.schedule import PlateauRule, plateau_due
+from .base import LossWeighting, recipe_params, register, shared_weights
+
+__all__ = ["GradNormCore", "MGNWeighting", "MgnParams", "full_precision"]
+
+
+class MgnParams(Strict):
+    """``mgn: {alpha, lr, lr_min, authors_mode}``: Algorithm 1's settings (section III-C)."""
+
+    alpha: float = Field(ge=0.0)
+    lr: float = Field(gt=0.0)
+    lr_min: float = Field(gt=0.0)
+    authors_mode: bool = Field(description="reproduce the authors' public code (SPEC 7)")
+
+    @model_validator(mode="after")
+    def _lr_floor(self) -> "MgnParams":
+        check_lr_floor(self.lr, self.lr_min)
+        return self
 
 _LOW = (torch.float16, torch.bfloat16)
 
@@ -89,6 +105,15 @@ class GradNormCore(LossWeighting):
         self.bad_epochs = 0
         self.n_updates = 0
         self.last: dict[str, Any] = {}  # diagnostics of the last update (float64 tensors)
+
+    @classmethod
+    def from_recipe(cls, recipe: ModelRecipe, tasks: Sequence[str], model: nn.Module | None = None,
+                    **kw: Any) -> "GradNormCore":
+        """The recipe's section (``params_model``) as keyword arguments, with the plateau settings
+        (``kw``) and W's module names (``model.shared_layers()``, now if ``model`` is given)."""
+        settings = recipe_params(recipe, cls.key, cls.params_model)
+        shared = model.shared_layers() if model is not None else None
+        return cls(tasks, shared, **settings.model_dump(), **kw)
 
     # ------------------------------------------------------------------ pieces
     def _shared_names(self, model: nn.Module) -> dict[str, list[str]]:
@@ -213,15 +238,6 @@ class MGNWeighting(GradNormCore):
                  authors_mode: bool = False, **kw: Any) -> None:
         super().__init__(tasks, shared, **kw)
         self.authors_mode = bool(authors_mode)
-
-    @classmethod
-    def from_recipe(cls, recipe: ModelRecipe, tasks: Sequence[str], model: nn.Module | None = None,
-                    **kw: Any) -> "MGNWeighting":
-        p = recipe.mgn
-        if p is None:
-            raise ValueError("weighting 'mgn' needs an 'mgn' section in the recipe")
-        shared = model.shared_layers() if model is not None else None
-        return cls(tasks, shared, alpha=p.alpha, lr=p.lr, lr_min=p.lr_min, authors_mode=p.authors_mode, **kw)
 
     def _grad_w_authors(self, losses: Mapping[str, Tensor], model: nn.Module) -> Tensor:
         """Authors' variant: second-order terms reach the network; w also gets dL_total/dw."""

@@ -1,0 +1,119 @@
+"""A run's checkpoints: ``best.pt`` (the network at the best validation score) and ``last.pt``
+(everything needed to resume bit-identically after the last finished epoch), written atomically
+by rank 0, read back on a restart, and what a failed write leaves behind.
+"""
+from __future__ import annotations
+
+import errno
+import logging
+import shutil
+from pathlib import Path
+from typing import Any, Optional
+
+import torch
+
+from ..core import io
+from .distributed import Dist
+from .state import RunPaths, RunState
+
+log = logging.getLogger(__name__)
+
+__all__ = ["save", "save_best", "save_last", "load_resumable", "restore", "mark_finished", "clear_for_start",
+           "discard_unsaved"]
+
+
+def save(obj: Any, path: Path, final: Path) -> None:
+    """``torch.save`` whose write failures are :class:`OSError` naming the file. On a full disk
+    torch raises ``RuntimeError: [enforce fail at inline_container.cc] unexpected pos``.
+
+    It writes through an open file: given a path, torch names the archive's root folder after
+    the file, and ``path`` is a random temporary name (:func:`io.atomic_path`), so the same
+    checkpoint would get other bytes on every run."""
+    try:
+        with open(path, "wb") as f:
+            torch.save(obj, f)
+    except OSError as err:
+        raise OSError(err.errno, err.strerror, str(final)) from None
+    except RuntimeError as err:
+        if "inline_container" not in str(err) and "PytorchStreamWriter" not in str(err):
+            raise
+        free = shutil.disk_usage(Path(path).parent).free
+        reason = "No space left on device" if free < (64 << 20) else f"write failed: {str(err).splitlines()[0]}"
+        raise OSError(errno.ENOSPC if free < (64 << 20) else errno.EIO, reason, str(final)) from None
+
+
+def _write(obj: Any, final: Path) -> None:
+    with io.atomic_path(final) as tmp:
+        save(obj, tmp, final)
+
+
+def save_best(run: RunState, epoch: int) -> None:
+    """``best.pt``: the network, its tasks, the epoch and its validation score."""
+    _write({"model": run.model.state_dict(), "tasks": list(run.model.tasks), "epoch": epoch,
+            "score": run.best_score}, run.spec.paths.best)
+
+
+def save_last(run: RunState, epoch: int) -> None:
+    """``last.pt`` after ``epoch``: what :func:`restore` reads back, under the run's digest."""
+    _write({
+        "digest": run.spec.digest, "epoch": epoch, "model": run.model.state_dict(),
+        "optimizer": run.optimizer.state_dict(), "weighting": run.weighting.state_dict(),
+        "plateau": run.plateau.state_dict(), "stopper": run.stopper.state_dict(), "history": run.history,
+        "best_score": run.best_score, "best_epoch": run.best_epoch, "lr": run.lr,
+        "torch_rng": torch.get_rng_state(), "stopped_early": run.stopped_early,
+        "elapsed_s": run.elapsed(), "finished": False, "untrained_score": run.untrained_score,
+    }, run.spec.paths.last)
+
+
+def load_resumable(path: Path, digest: str, device: torch.device) -> Optional[dict]:
+    """The checkpoint at ``path`` when it belongs to this run (the same ``digest``: code, params,
+    data); ``None`` (start afresh) when there is none, it is unreadable or of another run."""
+    if not path.exists():
+        return None
+    try:
+        state = torch.load(path, map_location=device, weights_only=False)
+    except Exception as err:  # a checkpoint cut short by a kill: start afresh
+        log.info("%s: unreadable checkpoint (%s); starting afresh", path, err)
+        return None
+    if state.get("digest") != digest:
+        log.info("%s: the checkpoint is of other code, params or data; starting afresh", path.parent)
+        return None
+    return state
+
+
+def restore(run: RunState, state: dict) -> None:
+    """Put a ``last.pt`` state (:func:`save_last`) back into ``run``: it continues after that epoch."""
+    run.model.load_state_dict(state["model"])
+    run.optimizer.load_state_dict(state["optimizer"])
+    run.weighting.load_state_dict(state["weighting"])
+    run.plateau.load_state_dict(state["plateau"])
+    run.stopper.load_state_dict(state["stopper"])
+    run.next_epoch, run.history = state["epoch"] + 1, state["history"]
+    run.best_score, run.best_epoch, run.lr = state["best_score"], state["best_epoch"], state["lr"]
+    run.untrained_score = state.get("untrained_score")
+    torch.set_rng_state(state["torch_rng"])
+    run.elapsed_before, run.stopped_early = state["elapsed_s"], bool(state.get("stopped_early"))
+
+
+def mark_finished(path: Path) -> None:
+    """Flag ``last.pt`` as a complete run (a restart then returns its summary)."""
+    state = torch.load(path, map_location="cpu", weights_only=False)
+    state["finished"] = True
+    _write(state, path)
+
+
+def clear_for_start(paths: RunPaths, resuming: bool) -> None:
+    """Rank 0, before the epochs: a fresh start removes the files of any earlier run; the dvclive
+    folder is always removed (it is rebuilt from the checkpoint's history)."""
+    if not resuming:
+        for stale in (paths.last, paths.best, paths.summary):
+            stale.unlink(missing_ok=True)
+    shutil.rmtree(paths.live, ignore_errors=True)
+
+
+def discard_unsaved(paths: RunPaths, dist: Dist) -> None:
+    """After a failed write: a run that never saved an epoch leaves nothing behind (rank 0)."""
+    if dist.is_main and not paths.last.exists():
+        shutil.rmtree(paths.live, ignore_errors=True)
+        for stale in (paths.best, paths.summary):
+            stale.unlink(missing_ok=True)

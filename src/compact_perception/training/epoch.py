@@ -1,0 +1,128 @@
+"""One epoch of paper section IV-D: the training steps (with the loss weighting's step protocol of
+section III-C, :mod:`compact_perception.weighting`) and the validation pass, each averaged over
+every process's frames.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+from tqdm.auto import tqdm
+
+from . import distributed as ddp
+from ..data import set_epoch, to_device
+from ..losses import scale_de_loss
+from ..metrics import compute_metrics, scores_from_means, total_metric_partial
+from .precision import autocast_context, batch_to_channels_last, float_outputs
+from .state import RunState
+
+__all__ = ["selection_score", "split_scores", "evaluate_split", "train_epoch", "train_step", "validate"]
+
+
+def selection_score(metrics: dict[str, float]) -> float:
+    """Validation score used for the schedule, early stopping and the best checkpoint.
+
+    It is the total metric TM (eq. 6) over the tasks the model performs: equal to TM for
+    the compact model, and to the model's own share of TM for a baseline.
+    """
+    return total_metric_partial(metrics)
+
+
+def split_scores(means: dict[str, float]) -> dict[str, float]:
+    """A split's mean scores with TM and MV recomputed from the four means (eq. 6-7, as the
+    paper's Table II defines MV; a mean of per-batch MV would not be it)."""
+    return {**means, **scores_from_means(means)}
+
+
+class _Mean:
+    """Running weighted means of scalar dicts."""
+
+    def __init__(self) -> None:
+        self.sums: dict[str, float] = {}
+        self.n = 0.0
+
+    def add(self, values: dict[str, Any], weight: float) -> None:
+        for k, v in values.items():
+            self.sums[k] = self.sums.get(k, 0.0) + float(v) * weight
+        self.n += weight
+
+    def mean(self) -> dict[str, float]:
+        return {k: v / max(self.n, 1e-12) for k, v in self.sums.items()}
+
+
+def evaluate_split(model: torch.nn.Module, loader, device: torch.device, spec: dict, dtype: torch.dtype,
+                   de_factor: float = 1.0) -> dict[str, float]:
+    """Mean per-frame metrics (and losses, the DE loss times ``de_factor``) of ``model`` over a
+    loader, in eval mode."""
+    model.eval()
+    acc = _Mean()
+    with torch.no_grad():
+        for batch in loader:
+            batch = to_device(batch, device, spec["num_seg_classes"], dtype=dtype)
+            out = model(batch)
+            losses = scale_de_loss(model.compute_losses(out, batch), de_factor)
+            n = next(iter(batch.values())).shape[0]
+            values = {f"loss_{k}": v.item() for k, v in losses.items()}
+            values.update({k: float(v) for k, v in
+                           compute_metrics(out, batch, argmax_tasks=model.argmax_tasks).items()})
+            acc.add(values, n)
+    return split_scores(acc.mean())
+
+
+def validate(run: RunState) -> dict[str, float]:
+    """The validation split's mean losses and metrics over every process's frames."""
+    spec = run.spec
+    means = evaluate_split(run.model, run.val_loader, spec.device, {"num_seg_classes": spec.num_seg_classes},
+                           spec.dtype, run.de_factor)
+    return ddp.average_scalars(means, spec.dist, len(run.val_loader))
+
+
+def train_step(run: RunState, batch: dict, step: int, n_steps: int) -> tuple[dict[str, float], int]:
+    """One optimiser step on ``batch`` (the weighting's protocol: ``before_backward``, its
+    ``backward``, the data-parallel gradient mean); returns the step's losses and metrics and the
+    number of frames."""
+    spec, weighting, scaler = run.spec, run.weighting, run.scaler
+    batch = to_device(batch, spec.device, spec.num_seg_classes, dtype=spec.dtype)
+    run.optimizer.zero_grad(set_to_none=True)
+    if spec.params.train.channels_last:
+        batch = batch_to_channels_last(batch)
+    with autocast_context(spec.device, run.precision):  # the forward only: losses in float32 (BCE clamps)
+        out = float_outputs(run.forward(batch))
+    losses = scale_de_loss(run.model.compute_losses(out, batch), run.de_factor)
+    weighting.grad_scale = scaler.get_scale() if scaler.is_enabled() else 1.0
+    weighting.before_backward(step, n_steps, losses, run.model)
+    if spec.dist.enabled:  # each rank's update saw its own batch: agree on the mean weights
+        weighting.set_weights(ddp.average_tensor(weighting.w, spec.dist))
+    total = weighting.backward(losses, run.model, scaler.scale)
+    scaler.unscale_(run.optimizer)
+    ddp.average_gradients(list(run.model.parameters()), spec.dist)
+    scaler.step(run.optimizer)
+    scaler.update()
+    with torch.no_grad():
+        values = {f"loss_{k}": v.item() for k, v in losses.items()}
+        values["loss_total"] = total.item()
+        values.update({k: float(v) for k, v in
+                       compute_metrics(out, batch, argmax_tasks=run.model.argmax_tasks).items()})
+    return values, next(iter(batch.values())).shape[0]
+
+
+def train_epoch(run: RunState, epoch: int) -> dict[str, float]:
+    """Every training step of ``epoch`` at the run's current lr; the epoch's mean losses and
+    metrics over every process's frames."""
+    spec = run.spec
+    for group in run.optimizer.param_groups:
+        group["lr"] = run.lr
+    set_epoch(run.train_loader, epoch, spec.seed)
+    run.model.train()
+    acc, n_steps = _Mean(), len(run.train_loader)
+    # the bar never touches the loader: a second iter() of a persistent-worker loader would
+    # draw another shuffling order, so the worker count would change the result
+    bar = tqdm(total=n_steps, desc=f"{spec.dataset_id}/{spec.model_id} epoch {epoch + 1}/{run.max_epochs}",
+               disable=not spec.dist.is_main, leave=False)
+    for step, batch in enumerate(run.train_loader):
+        values, frames = train_step(run, batch, step, n_steps)
+        acc.add(values, frames)
+        bar.set_postfix(loss=f"{values['loss_total']:.3f}", refresh=False)
+        bar.update()
+    bar.close()
+    return split_scores(ddp.average_scalars(acc.mean(), spec.dist, acc.n))

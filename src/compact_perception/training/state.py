@@ -1,0 +1,98 @@
+"""The state of one training run (paper section IV-D), shared by the steps of :mod:`.train`.
+
+:class:`RunSpec` is what the run is, fixed before anything is built (the recipe, the device and
+processes, the RNG seed and the digest that gates resuming); :class:`RunState` is the spec with
+the training machinery the setup step builds and the progress the other steps advance (and a
+checkpoint saves: :mod:`.checkpoint`).
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Optional
+
+import torch
+from torch import nn
+from torch.utils.data import DataLoader
+
+from ..core.config import ModelRecipe, Params
+from ..weighting import LossWeighting
+from .distributed import Dist
+from .schedule import EarlyStop, Plateau
+
+__all__ = ["RunPaths", "RunSpec", "RunState"]
+
+
+@dataclass(frozen=True)
+class RunPaths:
+    """The files of one run folder (a persistent DVC output)."""
+
+    out_dir: Path
+    last: Path       # resumable state after the last finished epoch
+    best: Path       # the network at the best validation score
+    summary: Path    # written last: the run is complete
+    live: Path       # dvclive's logs, rebuilt from the checkpoint's history on every start
+    onnx: Path       # the best network as ONNX (compact models)
+
+    @classmethod
+    def under(cls, out_dir: Path) -> "RunPaths":
+        return cls(out_dir, out_dir / "last.pt", out_dir / "best.pt", out_dir / "summary.json", out_dir / "live",
+                   out_dir / "model.onnx")
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """What one run is: its inputs, where it runs and writes, and its identity (seed, digest)."""
+
+    params: Params
+    dataset_id: str
+    model_id: str
+    recipe: ModelRecipe
+    cache_dir: Path
+    paths: RunPaths
+    device: torch.device
+    dist: Dist
+    seed: int                          # the RNG seed (train.run_seed)
+    digest: str                        # train.run_digest: a checkpoint of another digest is not resumed
+    per_rank_batch: int
+    num_seg_classes: int
+    dtype: torch.dtype
+    stop_after_epochs: Optional[int]   # end the process after this many epochs of this call (tests)
+    export_onnx: bool
+
+
+@dataclass
+class RunState:
+    """One run from setup to finish: the machinery (built by the setup step) and the progress
+    (restored from ``last.pt`` by the resume step, advanced by every epoch)."""
+
+    spec: RunSpec
+    model: nn.Module
+    forward: Callable[..., Any]        # the model, or its torch.compile'd forward
+    weighting: LossWeighting
+    optimizer: torch.optim.Optimizer
+    plateau: Plateau
+    stopper: EarlyStop
+    scaler: torch.amp.GradScaler
+    precision: str                     # the resolved train.precision (fp32, bf16, fp16)
+    de_factor: float                   # the recipe's DE loss form (losses.de_loss_factor)
+    max_epochs: int
+    lr: float                          # the lr of the next epoch (plateau schedule)
+    next_epoch: int = 0
+    history: list[dict] = field(default_factory=list)
+    best_score: float = math.inf
+    best_epoch: int = -1
+    untrained_score: Optional[float] = None
+    stopped_early: bool = False
+    elapsed_before: float = 0.0        # training seconds of earlier calls (resumed runs)
+    started: float = 0.0               # time.perf_counter() at the first epoch of this call
+    epochs_this_call: int = 0
+    train_loader: Optional[DataLoader] = None
+    val_loader: Optional[DataLoader] = None
+    live: Any = None                   # dvclive.Live on rank 0, None elsewhere
+
+    def elapsed(self) -> float:
+        """Training seconds so far, earlier calls included."""
+        return self.elapsed_before + time.perf_counter() - self.started
