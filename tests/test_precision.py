@@ -231,6 +231,7 @@ def _updates(precision: str) -> dict[str, MGNWeighting]:
         for name, (cls, kw) in WEIGHTINGS.items():
             out[name] = cls(model.tasks, model.shared_layers(), **kw)
             out[name].before_backward(0, 1, losses, model)
+            out[name].after_backward()
     return out
 
 

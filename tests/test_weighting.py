@@ -111,10 +111,12 @@ def test_mgn_one_update_matches_hand_computation() -> None:
     mgn = make_mgn(model, alpha=1.5, lr=0.1)
     L0, _ = np_losses_and_norms(model, b0)
     mgn.before_backward(0, 2, task_losses(model, b0), model)
+    mgn.after_backward()
     assert np.allclose(mgn.w.numpy(), 1.0)  # step 0 only records L_i(0)
     np.testing.assert_allclose(mgn.L0.numpy(), L0, atol=1e-12)
     L1, n1 = np_losses_and_norms(model, b1)
     mgn.before_backward(1, 2, task_losses(model, b1), model)
+    mgn.after_backward()
     w_ref, ref = np_mgn_step(np.ones(4), L0, L1, n1, 1.5, 0.1)
     np.testing.assert_allclose(mgn.last["norms"].numpy(), n1, atol=1e-10)
     np.testing.assert_allclose(mgn.last["r"].numpy(), ref["r"], atol=1e-10)
@@ -133,6 +135,7 @@ def test_mgn_leaves_network_and_grads_untouched_and_graph_alive() -> None:
     mgn = make_mgn(model)
     losses = task_losses(model, make_batch(3))
     mgn.before_backward(0, 1, losses, model)  # n_steps == 1: record and update on the same step
+    mgn.after_backward()
     assert mgn.n_updates == 1
     for k, p in model.named_parameters():
         assert torch.equal(p, before[k][0]) and torch.equal(p.grad, before[k][1]), k
@@ -150,6 +153,7 @@ def test_mgn_sum_stays_T_over_epochs_and_total() -> None:
         for step in range(3):
             losses = task_losses(model, make_batch(10 * epoch + step, {"ls": 4.0}))
             mgn.before_backward(step, 3, losses, model)
+            mgn.after_backward()
             opt.zero_grad()
             mgn.total(losses).backward()
             opt.step()
@@ -170,9 +174,11 @@ def test_mgn_non_positive_weight_is_floored() -> None:
     b0, b1 = make_batch(1), make_batch(2, {"ss": 3.0, "bevp": 0.2})
     mgn = make_mgn(model, lr=100.0)  # a huge step drives weights negative
     mgn.before_backward(0, 2, task_losses(model, b0), model)
+    mgn.after_backward()
     L0, _ = np_losses_and_norms(model, b0)
     L1, n1 = np_losses_and_norms(model, b1)
     mgn.before_backward(1, 2, task_losses(model, b1), model)
+    mgn.after_backward()
     raw = 1.0 - 100.0 * np_mgn_step(np.ones(4), L0, L1, n1, 1.5, 100.0)[1]["grad"]
     assert (raw <= 0).any()
     w_ref = np.maximum(raw, 4e-3)
@@ -191,15 +197,20 @@ def test_mgn_plateau_and_state_round_trip() -> None:
     model = Tiny()
     a = make_mgn(model, lr=0.3)
     a.before_backward(0, 2, task_losses(model, make_batch(1)), model)
+    a.after_backward()
     a.before_backward(1, 2, task_losses(model, make_batch(2, {"ss": 2.0})), model)
+    a.after_backward()
     a.on_epoch_end(False)
     a.before_backward(0, 2, task_losses(model, make_batch(5)), model)  # interrupted mid-epoch
+    a.after_backward()
     b = make_mgn(model)
     b.load_state_dict(copy.deepcopy(a.state_dict()))
     assert b.state_dict() == a.state_dict()
     last = task_losses(model, make_batch(6, {"bevp": 3.0}))
     a.before_backward(1, 2, last, model)
+    a.after_backward()
     b.before_backward(1, 2, last, model)
+    b.after_backward()
     assert torch.equal(a.w, b.w) and a.log_values() == b.log_values()
 
 
@@ -210,6 +221,7 @@ def test_authors_mode_changes_network_grads() -> None:
         mgn = make_mgn(model, authors_mode=mode)
         b0, b1 = make_batch(1), make_batch(2, {"ss": 3.0, "bevp": 0.2})
         mgn.before_backward(0, 2, task_losses(model, b0), model)
+        mgn.after_backward()
         losses = task_losses(model, b1)
         model.zero_grad()
         mgn.before_backward(1, 2, losses, model)
@@ -218,6 +230,7 @@ def test_authors_mode_changes_network_grads() -> None:
         else:
             assert all(p.grad is None for p in model.parameters())
         mgn.total(losses).backward()
+        mgn.after_backward()
         grads[mode] = torch.cat([p.grad.flatten() for p in model.parameters()])
         last[mode] = mgn.last
         assert float(mgn.w.sum()) == pytest.approx(4.0)
@@ -234,13 +247,71 @@ def test_authors_mode_update_matches_hand_computation() -> None:
     mgn = make_mgn(model, alpha=1.5, lr=0.1, authors_mode=True)
     L0, _ = np_losses_and_norms(model, b0)
     mgn.before_backward(0, 2, task_losses(model, b0), model)
+    mgn.after_backward()
     L1, n1 = np_losses_and_norms(model, b1)
     mgn.before_backward(1, 2, task_losses(model, b1), model)
+    mgn.after_backward()
     _, ref = np_mgn_step(np.ones(4), L0, L1, n1, 1.5, 0.1)
     w_hand = np.maximum(1.0 - 0.1 * (ref["grad"] + L1), 1e-3 * 4)
     w_hand = w_hand * 4 / w_hand.sum()
     np.testing.assert_allclose(mgn.last["grad_w"].numpy(), ref["grad"] + L1, atol=1e-6)
     np.testing.assert_allclose(mgn.w.numpy(), w_hand, atol=1e-6)
+
+
+@pytest.mark.parametrize("authors_mode", [False, True])
+def test_the_updating_step_backpropagates_with_the_weights_it_started_with(authors_mode) -> None:
+    """Issue 23 item 7, by hand: at an epoch's last step MGN computes w(t+1), but that step's
+    network gradient is the one of sum_i w_i(t) L_i (Algorithm 1 and the authors' train.py: the
+    total loss is backpropagated before w is updated); w(t+1) is in place after the step.
+    Reference: w(t) = (0.5, 1.5, 1.0, 1.0), set before the epoch; the gradient of
+    sum_i w_i(t) L_i taken by autograd on a copy of the network; w(t+1) by numpy (np_mgn_step);
+    in the authors' form the second-order terms of L_MGN are added to the network's gradient
+    before the total loss is, so the reference there is the default form's gradient plus them."""
+    model = Tiny()
+    w_t = torch.tensor([0.5, 1.5, 1.0, 1.0], dtype=D)
+    b = make_batch(2, {"ss": 3.0, "bevp": 0.2})
+    ref_model = copy.deepcopy(model)
+    ref_losses = task_losses(ref_model, b)
+    sum(w * ref_losses[k] for w, k in zip(w_t, TASKS)).backward()
+    ref_grad = torch.cat([p.grad.flatten() for p in ref_model.parameters()])
+    L, n = np_losses_and_norms(model, b)
+
+    mgn = make_mgn(model, authors_mode=authors_mode)
+    mgn.set_weights(w_t)
+    losses = task_losses(model, b)
+    mgn.before_backward(0, 1, losses, model)            # one step per epoch: L(0) = L, then the update
+    second_order = [None if p.grad is None else p.grad.clone() for p in model.parameters()]
+    assert torch.equal(mgn.w, w_t)                      # not yet taken
+    mgn.backward(losses, model)
+    mgn.after_backward()
+    got = torch.cat([(p.grad - (0 if s is None else s)).flatten() for p, s in zip(model.parameters(), second_order)])
+    torch.testing.assert_close(got, ref_grad, rtol=0, atol=1e-12)
+    w_next, ref = np_mgn_step(w_t.numpy(), L, L, n, MGN_ARGS["alpha"], MGN_ARGS["lr"])
+    if authors_mode:  # w's gradient also gets dL_total/dw_i = L_i
+        w_next = np.maximum(w_t.numpy() - MGN_ARGS["lr"] * (ref["grad"] + L), 4e-3)
+        w_next = w_next * 4 / w_next.sum()
+    np.testing.assert_allclose(mgn.w.numpy(), w_next, atol=1e-9)
+    assert not np.allclose(w_next, w_t.numpy())         # the update is not trivial
+
+
+def test_gradnorm_backpropagates_each_step_with_the_weights_it_started_with() -> None:
+    """Chen et al. (2018): each step's network update uses w(t); w(t+1) comes after it."""
+    model = Tiny()
+    gn = GradNormWeighting(TASKS, model.shared_layers(), alpha=1.5, lr=0.05, **PLATEAU)
+    gn.set_weights(torch.tensor([0.5, 1.5, 1.0, 1.0], dtype=D))
+    w_t = gn.w.clone()
+    b = make_batch(4, {"ls": 4.0})
+    ref_model = copy.deepcopy(model)
+    ref_losses = task_losses(ref_model, b)
+    sum(w * ref_losses[k] for w, k in zip(w_t, TASKS)).backward()
+    losses = task_losses(model, b)
+    gn.before_backward(0, 3, losses, model)
+    assert torch.equal(gn.w, w_t)
+    gn.backward(losses, model)
+    gn.after_backward()
+    for p, q in zip(model.parameters(), ref_model.parameters()):
+        torch.testing.assert_close(p.grad, q.grad, rtol=0, atol=1e-12)
+    assert not torch.equal(gn.w, w_t) and float(gn.w.sum()) == pytest.approx(4.0, abs=1e-12)
 
 
 # ----------------------------------------------------------------------------- GradNorm
@@ -254,14 +325,15 @@ def test_gradnorm_updates_every_step_and_keeps_sum() -> None:
         for step in range(3):
             losses = task_losses(model, make_batch(10 * epoch + step, {"ls": 4.0}))
             gn.before_backward(step, 3, losses, model)
+            opt.zero_grad()
+            gn.total(losses).backward()       # the step's backward: with w(t)
+            gn.after_backward()               # then w(t+1)
             if first_L0 is None:
                 first_L0 = gn.L0.clone()
             assert torch.equal(gn.L0, first_L0)  # L_i(0) from the very first step only
             assert not torch.equal(gn.w, prev)
             prev = gn.w.clone()
             assert float(gn.w.sum()) == pytest.approx(4.0, abs=1e-12)
-            opt.zero_grad()
-            gn.total(losses).backward()
             opt.step()
         gn.on_epoch_end(False)
     assert gn.n_updates == 6 and gn.log_values()["lr_w"] == pytest.approx(0.05)
@@ -269,7 +341,9 @@ def test_gradnorm_updates_every_step_and_keeps_sum() -> None:
     gn2.load_state_dict(copy.deepcopy(gn.state_dict()))
     losses = task_losses(model, make_batch(99))
     gn.before_backward(0, 3, losses, model)
+    gn.after_backward()
     gn2.before_backward(0, 3, losses, model)
+    gn2.after_backward()
     assert torch.equal(gn.w, gn2.w)
 
 
@@ -289,6 +363,7 @@ def test_registry_and_factory() -> None:
         assert w.log_values()["w_de"] == 1.0
         losses = task_losses(model, make_batch(0))
         w.before_backward(0, 1, losses, model)
+        w.after_backward()
         assert float(w.w.sum()) == pytest.approx(4.0)
     assert build_weighting(kinds["mgn"][0], TASKS, model, plateau_patience=4, plateau_factor=0.5).lr == pytest.approx(0.1)
     with pytest.raises(KeyError):

@@ -262,6 +262,7 @@ def test_dwa_weights_after_three_epochs_by_hand() -> None:
     for e, steps in enumerate(epochs):
         for k, vals in enumerate(steps):
             dwa.before_backward(k, len(steps), {t: torch.tensor(v) for t, v in zip(tasks, vals)}, model)
+            dwa.after_backward()
             seen.append(dwa.w.tolist())
         dwa.on_epoch_end(False)
     assert all(w == [1.0, 1.0, 1.0] for w in seen[:4])  # epochs 0 and 1: w = 1
@@ -290,14 +291,17 @@ def test_dwa_state_round_trip_mid_epoch_and_non_finite_steps() -> None:
     for steps in vals[:2]:
         for k, v in enumerate(steps):
             a.before_backward(k, len(steps), dict(zip(tasks, map(torch.tensor, v))), model)
+            a.after_backward()
         a.on_epoch_end(True)
     # the inf step is left out of de's mean: L(1) = (1.5, 2)
     assert a.history == [[2.0, 1.5], [1.5, 2.0]]
     a.before_backward(0, 2, dict(zip(tasks, map(torch.tensor, vals[2][0]))), model)
+    a.after_backward()
     b = DWAWeighting(tasks, temperature=1.5, **PLATEAU)
     b.load_state_dict(copy.deepcopy(a.state_dict()))
     for x in (a, b):
         x.before_backward(1, 2, dict(zip(tasks, map(torch.tensor, (1.0, 2.0)))), model)
+        x.after_backward()
         x.on_epoch_end(False)
     assert torch.equal(a.w, b.w) and a.history == b.history == [[1.5, 2.0], [0.75, 1.5]]
     r = [0.75 / 1.5, 1.5 / 2.0]
@@ -504,6 +508,7 @@ def _train_step(weighting, model: Tiny, opt: torch.optim.Optimizer, step: int, n
     opt.zero_grad(set_to_none=True)
     losses = tiny_losses(model, seed)
     weighting.before_backward(step, n_steps, losses, model)
+    weighting.after_backward()
     weighting.backward(losses, model)
     opt.step()
 

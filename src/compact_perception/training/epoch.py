@@ -91,9 +91,10 @@ def train_step(run: RunState, batch: dict, step: int, n_steps: int) -> tuple[dic
     losses = scale_de_loss(run.model.compute_losses(out, batch), run.de_factor)
     weighting.grad_scale = scaler.get_scale() if scaler.is_enabled() else 1.0
     weighting.before_backward(step, n_steps, losses, run.model)
+    total = weighting.backward(losses, run.model, scaler.scale)     # with the step's weights w(t)
+    weighting.after_backward()                                      # w(t+1), if the step updated them
     if spec.dist.enabled:  # each rank's update saw its own batch: agree on the mean weights
         weighting.set_weights(ddp.average_tensor(weighting.w, spec.dist))
-    total = weighting.backward(losses, run.model, scaler.scale)
     scaler.unscale_(run.optimizer)
     ddp.average_gradients(list(run.model.parameters()), spec.dist)
     scaler.step(run.optimizer)

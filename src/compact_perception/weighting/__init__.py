@@ -23,7 +23,7 @@ Interface (:class:`~.base.LossWeighting`)
   when loss scaling is off). Gradient-surgery methods (pcgrad, cagrad) override it: T per-task
   ``torch.autograd.grad`` passes, then the combined gradient is *added* to ``.grad`` (set when
   it is ``None``); uw overrides it to also step its log-variances.
-- ``before_backward(step, n_steps, losses, model) -> None``
+- ``before_backward(step, n_steps, losses, model) -> None``; ``after_backward() -> None``
 - ``on_epoch_end(improved: bool) -> None``: ``improved`` = this epoch's validation TM dropped;
   plateau halving of the weight lr (MGN) after ``plateau_patience`` epochs without a drop,
   ``lr <- max(lr * plateau_factor, lr_min)``.
@@ -40,8 +40,9 @@ Step protocol (trainer, every training step; ``step`` counts 0..n_steps-1 within
     outputs = model(batch)
     losses = model.compute_losses(outputs, batch)          # task -> scalar (+ aux_* keys)
     weighting.grad_scale = scaler.get_scale()              # 1.0 without loss scaling
-    weighting.before_backward(step, n_steps, losses, model)
-    total = weighting.backward(losses, model, scaler.scale)  # uses the (possibly updated) w
+    weighting.before_backward(step, n_steps, losses, model)  # MGN / GradNorm compute w(t+1) here
+    total = weighting.backward(losses, model, scaler.scale)  # with the step's weights w(t)
+    weighting.after_backward()                               # w(t+1) taken (Algorithm 1's order)
     scaler.unscale_(optimizer); scaler.step(optimizer); scaler.update()
     ... after validation: weighting.on_epoch_end(improved)
 

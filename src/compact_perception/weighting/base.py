@@ -119,6 +119,12 @@ class LossWeighting:
     def before_backward(self, step: int, n_steps: int, losses: Mapping[str, Tensor], model: nn.Module) -> None:
         """Called every training step after the forward pass, before ``total(losses).backward()``."""
 
+    def after_backward(self) -> None:
+        """Called every training step after :meth:`backward`, before the optimiser step. A method
+        that computes new weights from this step's graph (:meth:`before_backward`: MGN, GradNorm)
+        takes them here, so the step's own backward used the weights it started with, w(t), as
+        Algorithm 1 and the authors' ``train.py`` (and Chen et al.'s GradNorm) have it."""
+
     def on_epoch_end(self, improved: bool) -> None:
         """Called once per epoch after validation; ``improved`` = the validation TM dropped."""
 

@@ -50,7 +50,8 @@ class GradNormWeighting(GradNormCore):
         self.bad_epochs = 0 if improved else self.bad_epochs + 1
 
     def before_backward(self, step: int, n_steps: int, losses: Mapping[str, Tensor], model: nn.Module) -> None:
-        """One GradNorm update of w per training step."""
+        """One GradNorm update per training step: w(t+1) from this step's gradient norms, taken
+        by :meth:`after_backward` once the step's backward has used w(t) (Chen et al. 2018)."""
         if self.L0 is None:
             self.L0 = self._loss_vector(losses)
         g = self._grad_w(losses, model)
@@ -59,7 +60,7 @@ class GradNormWeighting(GradNormCore):
         self.opt.step()
         with torch.no_grad():
             self._param.copy_(self._renormalise(self._param.detach()))
-        self.w = self._param.detach().clone()
+        self._pending = self._param.detach().clone()
         self.n_updates += 1
 
     def state_dict(self) -> dict[str, Any]:

@@ -102,6 +102,7 @@ class GradNormCore(LossWeighting):
             raise ValueError("min_weight_ratio must be in (0, 1/T)")
         self.min_weight_ratio = float(min_weight_ratio)
         self.L0: Tensor | None = None  # float64 (T,)
+        self._pending: Tensor | None = None  # w(t+1), computed from this step, taken after its backward
         self.bad_epochs = 0
         self.n_updates = 0
         self.last: dict[str, Any] = {}  # diagnostics of the last update (float64 tensors)
@@ -180,6 +181,13 @@ class GradNormCore(LossWeighting):
         self.last = {"norms": n, "G": G.detach(), "r": r, "target": target, "L": L,
                      "l_grad": float(l_grad.detach()), "grad_w": g.detach()}
         return g.detach()
+
+    def after_backward(self) -> None:
+        """Take the weights this step's update computed (:meth:`before_backward`): the step's
+        ``total(losses).backward()`` used w(t), the next step uses w(t+1)."""
+        if self._pending is not None:
+            self.set_weights(self._pending)
+            self._pending = None
 
     # ------------------------------------------------------------------ plateau / state
     def on_epoch_end(self, improved: bool) -> None:
@@ -274,14 +282,15 @@ class MGNWeighting(GradNormCore):
         return g
 
     def before_backward(self, step: int, n_steps: int, losses: Mapping[str, Tensor], model: nn.Module) -> None:
-        """Algorithm 1: record L_i(0) at step 0; update w at step n_steps - 1."""
+        """Algorithm 1: record L_i(0) at step 0; at step n_steps - 1 compute w(t+1), which
+        :meth:`after_backward` takes once that step's backward has used w(t)."""
         if n_steps < 1 or not 0 <= step < n_steps:
             raise ValueError(f"step {step} outside [0, n_steps={n_steps})")
         if step == 0:
             self.L0 = self._loss_vector(losses)
         if step == n_steps - 1:
             g = self._grad_w_authors(losses, model) if self.authors_mode else self._grad_w(losses, model)
-            self.w = self._renormalise(self.w - self.lr * g)
+            self._pending = self._renormalise(self.w - self.lr * g)
             self.n_updates += 1
 
     def state_dict(self) -> dict[str, Any]:
