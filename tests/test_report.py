@@ -311,6 +311,19 @@ def test_column_interval_matches_the_difference_of_means(tmp_path: Path) -> None
     assert column_interval("polarnet", "compact_15l", "tm", frames) is None     # PolarNet has no TM
 
 
+def test_training_text_says_how_deep_and_why_it_stopped() -> None:
+    from compact_perception.report.tables.formats import training_text
+
+    one = {"epochs_run": 12, "best_epoch": 8, "stop_reason": "plateau"}
+    assert training_text([one, one, one]) == "12 (best 8), plateau"
+    mixed = [one, {"epochs_run": 15, "best_epoch": 11, "stop_reason": "plateau"},
+             {"epochs_run": 20, "best_epoch": 20, "stop_reason": "max_epochs"}]
+    assert training_text(mixed) == "12/15/20 (best 8/11/20), max_epochs x1, plateau x2"
+    assert training_text([{"epochs_run": 3, "best_epoch": 2}]) == "3 (best 2)"      # an older summary.json
+    assert training_text([one, {"epochs_run": 12, "best_epoch": 8}]) == "12 (best 8), plateau x1"
+    assert training_text([]) == ""
+
+
 def test_table2_missing_model_row_is_na(tmp_path: Path) -> None:
     _tree(tmp_path, ("A",))
     for k in SEEDS:
@@ -482,6 +495,12 @@ def test_plots_csv_one_row_per_run_and_epoch(tmp_path: Path) -> None:
     got_w = [(r["run"], r["task"], int(r["epoch"])) for r in w]
     assert len(got_w) == len(set(got_w)) and set(got_w) == want_w
     assert not any("seed9" in r for r, _ in got)
+    # seed lists per dataset ({ds: {model: seeds}}, params.seeds_of(group, dataset)): set A at seed 0 only
+    per_ds = {"A": seed_map((0,), (0,)), "nuscenes": seeds}
+    write_plot_data(tmp_path, ("A", "nuscenes"), MODELS, tmp_path / "plots2", per_ds)
+    runs2 = {r["run"] for r in csv.DictReader((tmp_path / "plots2/val_tm.csv").open())}
+    assert {r for r in runs2 if r.startswith("A/")} == {f"A/{m}/seed0" for m in MODELS}
+    assert {r for r in runs2 if r.startswith("nuscenes/")} == {r for r, _ in got if r.startswith("nuscenes/")}
 
 
 @pytest.mark.parametrize("name,template,y,extra", [("val_tm.csv", "by_run", "val_tm", None),

@@ -163,13 +163,13 @@ def read_metrics(path: Path, dataset: str = "", model: str = "") -> ModelResult:
                        extra)
 
 
-def seeds_for(seeds: SeedSpec, model: str, dataset: Optional[str] = None) -> Optional[tuple[int, ...]]:
+def seeds_for(seeds: SeedSpec, model: str, dataset: str) -> Optional[tuple[int, ...]]:
     """The seed list of ``model`` (on ``dataset``) in ``seeds``: the one lookup of the report
     (``None``: every seed folder found)."""
     if seeds is None:
         return None
     if isinstance(seeds, Mapping):
-        if dataset is not None and isinstance(seeds.get(dataset), Mapping):
+        if isinstance(seeds.get(dataset), Mapping):
             seeds = seeds[dataset]
         if model not in seeds:
             return None
