@@ -20,20 +20,23 @@ from compact_perception.core.registry import Registry
 from compact_perception.metrics import scores_from_means
 from compact_perception.report import efficiency as eff
 from compact_perception.report import schema
-from compact_perception.report.collect import (ReportInputError, aggregate_cells, Cell, load_results, load_row_frames,
-                                               read_metrics)
+from compact_perception.report.collect import (ReportInputError, aggregate_cells, Cell, collect_scale, load_floor_frames,
+                                               load_floor_results, load_results, load_row_frames, read_metrics)
+from compact_perception.report.gate import DatasetFloor
 from compact_perception.report.figures import plot_loss_weights, plot_qualitative, plot_training_curves
 from compact_perception.report.index import HEADLINE_KEY, HEADLINE_MODEL, build_reports
 from compact_perception.report.plots import write_plot_data
 from compact_perception.report.paper import load_paper_numbers
 from compact_perception.report.schema import ROW_ORDER, TASK_COLUMNS, paper_row
-from compact_perception.report.tables.table2 import build_table2, column_bootstrap, table2_markdown, write_table2
+from compact_perception.report.tables.table2 import build_table2, column_interval, table2_markdown, write_table2
 from compact_perception.report.tables.table3 import build_table3
-from report_fixture import (MGN, MODELS, SEEDS, TASKS, bases_with, build_tree, n_epochs, per_frame, run_dirs,
-                            seed_map, write_json, write_run)
+from report_fixture import (ARGMAX_GAIN, COMPACT, FLOORS, MGN, MODELS, SEEDS, TASKS, bases_with, build_tree, n_epochs,
+                            per_frame, run_dirs, seed_map, write_json, write_run)
 
 SEEDMAP = seed_map()
 N_FRAMES = 40
+#: Each run's own shift (report_fixture.jitter_of), where an interval between rows matters.
+JITTER = 0.004
 #: 15L+MGN (both forms) better than 15L on LS and BEVP, equal on DE and SS: IoU_LS (PolarNet),
 #: IoU_BEVP (Chen) and TM (the combination, 1.1 against 15L+MGN's 1.24) have clear winners;
 #: MAE_DE and IoU_SS of 15L and both MGN rows are equal (the best is not separated).
@@ -146,6 +149,10 @@ def _frames(root: Path, datasets: tuple[str, ...] = ("A", "nuscenes"), seeds=SEE
     return {ds: load_row_frames(root, ds, MODELS, seeds) for ds in datasets}
 
 
+def _floors(root: Path, datasets: tuple[str, ...] = ("A", "nuscenes")) -> dict[str, DatasetFloor]:
+    return {ds: DatasetFloor(ds, load_floor_results(root, ds), load_floor_frames(root, ds)) for ds in datasets}
+
+
 def _stale_run(root: Path, ds: str = "A", model: str = "compact_1l", seed: int = 9) -> None:
     """A run of a seed no longer in params: absurd scores that would show if it counted."""
     df = per_frame(ds, model, seed, N_FRAMES, bases_with(**{model: {"mae_de": 5.0, "iou_ss": 0.0, "iou_ls": 0.0,
@@ -158,7 +165,7 @@ def test_mean_sd_over_seeds_by_hand(tmp_path: Path) -> None:
     and 0.59, 0.60, 0.62 (IoU_SS); TM 1.64, 1.60, 1.52; MV of the four means 0.035 in every seed."""
     mets = _tree(tmp_path, ("A",))
     _stale_run(tmp_path)
-    write_table2(_results(tmp_path, ("A",)), tmp_path / "out", _frames(tmp_path, ("A",)))
+    write_table2(_results(tmp_path, ("A",)), tmp_path / "out", _frames(tmp_path, ("A",)), floors=_floors(tmp_path, ("A",)))
     row = [r for r in csv.DictReader((tmp_path / "out/table2.csv").open()) if r["row_id"] == "compact_1l"][0]
     sd = math.sqrt(((0.11 - 0.29 / 3) ** 2 + (0.10 - 0.29 / 3) ** 2 + (0.08 - 0.29 / 3) ** 2) / 2)
     assert sd == pytest.approx(math.sqrt(7 / 30000))
@@ -175,7 +182,7 @@ def test_mean_sd_over_seeds_by_hand(tmp_path: Path) -> None:
                                                        abs=1e-15)
     assert row["n_seeds"] == "3" and row["seeds"] == "0;1;2" and row["n_test_frames"] == str(N_FRAMES)
     md = (tmp_path / "out/table2.md").read_text()
-    assert f"| 1L | 3 | {0.29 / 3:.3f} ± {sd:.3f} |" in md
+    assert f"| 1L | 3 |  | {0.29 / 3:.3f} ± {sd:.3f} |" in md         # no training facts given: Trained empty
     assert "mean ± sd over the seeds" in md and "variance over the test frames" in md and "var (frames)" in md
     assert f"Test frames per run: Set A {N_FRAMES}" in md and "1L, 15L, 15L+MGN (Alg. 1), 15L+MGN (authors' code)" in md
     # aggregate_cells is that computation
@@ -193,23 +200,34 @@ def test_one_seed_prints_n1(tmp_path: Path) -> None:
 
 
 def test_table2_numbers_bold_and_combination(tmp_path: Path) -> None:
-    mets = _tree(tmp_path)
+    mets = _tree(tmp_path, jitter=JITTER)
     results = _results(tmp_path)
-    paths = write_table2(results, tmp_path / "out", _frames(tmp_path))
+    training = {ds: sc.epochs for ds, sc in collect_scale(tmp_path, ("A", "nuscenes"), MODELS, results, SEEDMAP).items()}
+    paths = write_table2(results, tmp_path / "out", _frames(tmp_path), floors=_floors(tmp_path), training=training)
     assert sorted(p.name for p in paths) == ["table2.csv", "table2.md", "table2.tex"] and all(p.is_file() for p in paths)
     rows = list(csv.DictReader((tmp_path / "out/table2.csv").open()))
-    assert [r["row_id"] for r in rows[:8]] == ROWS
+    assert [r["row_id"] for r in rows[:10]] == list(FLOORS) + ROWS            # the floor first in every block
+    assert [r["kind"] for r in rows[:3]] == ["floor", "floor", "model"] and rows[3]["kind"] == "model"
     labels = {r["row_id"]: r["label"] for r in rows}
     assert labels["compact_15l_mgn"] == "15L+MGN (Alg. 1)" and labels["compact_15l_mgn_authors"] == "15L+MGN (authors' code)"
+    assert labels["floor_pixel"] == "Floor (per-pixel prior)" and labels["floor_global"] == "Floor (global prior)"
     md = (tmp_path / "out/table2.md").read_text()
     tex = (tmp_path / "out/table2.tex").read_text()
     assert "| 15L+MGN (Alg. 1) |" in md and "| 15L+MGN (authors' code) |" in md and "authors' public code" in md
+    assert "| Floor (per-pixel prior) | fixed | - | 0.300 |" in md                 # its one value, nothing trained
+    assert "| 1L | 3 | 3/4/5 (best 1/2/3), plateau | " in md                       # how deep it trained
+    assert "eq. (5) on the raw outputs" in md and "the arg-max rule" in md and "extra_metrics.md" in md
 
     def by_seed(ds: str, m: str, c: str) -> list[float]:
         return [mets[(ds, m, k)][c]["mean"] for k in SEEDS]
 
     for r in rows:
         ds, rid = r["dataset"], r["row_id"]
+        if r["kind"] == "floor":
+            assert float(r["mae_de_mean"]) == pytest.approx(mets[(ds, rid)]["mae_de"]["mean"]) and r["n_seeds"] == "0"
+            assert r["above_floor"] == "" and r["bold"] == ""
+            continue
+        assert r["above_floor"] == "yes" and r["below_floor"] == "" and r["not_shown_above_floor"] == ""
         if rid == "combination":
             src = {"mae_de": "gradnorm_segnet", "iou_ss": "gradnorm_segnet", "iou_ls": "polarnet", "iou_bevp": "chen_bev"}
             tms, mvs = [], []
@@ -224,6 +242,7 @@ def test_table2_numbers_bold_and_combination(tmp_path: Path) -> None:
             for c in TASK_COLUMNS:
                 assert float(r[f"{c}_mean"]) == pytest.approx(np.mean(by_seed(ds, src[c], c)), abs=1e-12)
             continue
+        assert r["epochs_run"] == "3;4;5" and r["best_epoch"] == "1;2;3" and r["stop_reason"] == "plateau;plateau;plateau"
         for c in TASK_COLUMNS:                        # every cell present, equal to the metrics files
             if c in TASKS[rid]:
                 assert float(r[f"{c}_mean"]) == pytest.approx(np.mean(by_seed(ds, rid, c)), abs=1e-12)
@@ -235,7 +254,7 @@ def test_table2_numbers_bold_and_combination(tmp_path: Path) -> None:
         if len(TASKS[rid]) == 4:                      # TM and MV of each run's four means, over seeds
             assert float(r["tm"]) == pytest.approx(np.mean([mets[(ds, rid, k)]["tm"]["mean"] for k in SEEDS]), abs=1e-12)
             assert float(r["mv"]) == pytest.approx(np.mean([mets[(ds, rid, k)]["mv"]["value"] for k in SEEDS]), abs=1e-12)
-    # bold only where the bootstrap (seeds and frames) separates the best from the runner-up
+    # bold only where the row is above the floor and the interval separates it from the runner-up
     for ds in ("A", "nuscenes"):
         dsr = {r["row_id"]: r for r in rows if r["dataset"] == ds}
         bold = {c: [rid for rid, r in dsr.items() if c in r["bold"].split(";")] for c in
@@ -248,23 +267,61 @@ def test_table2_numbers_bold_and_combination(tmp_path: Path) -> None:
         assert len(bold["mv"]) <= 1
         assert dsr["combination"]["bold"] in ("", "tm", "mv", "tm;mv")   # its task cells are copies
     assert "**" in md and "\\textbf{" in tex and "inconclusive against" in md and "$^\\dagger$" in tex
-    # without per-frame scores nothing is bold and every best value says why
-    plain = build_table2(results)
-    assert not any(r.bold for rs in plain.values() for r in rs if len([x for x in rs if x.available]) > 1)
-    assert any("no per-frame scores" in n for rs in plain.values() for r in rs for n in r.notes.values())
+    assert "| Above floor |" in md and "| yes |" in md
+    # without the floor nothing is bold and every best value says why
+    plain = build_table2(results, _frames(tmp_path))
+    assert not any(r.bold for rs in plain.values() for r in rs)
+    assert any("no floor results" in n for rs in plain.values() for r in rs for n in r.notes.values())
 
 
-def test_column_bootstrap_matches_direct_bootstrap(tmp_path: Path) -> None:
-    _tree(tmp_path, ("A",))
+def test_table2_bolds_nothing_below_the_floor_and_marks_it(tmp_path: Path) -> None:
+    """Every IoU_SS is below the floor's 0.30 but GradNorm's (0.32, not shown above it: inside the
+    seeds' spread) and 1L's IoU_LS is below it: no bold in SS, the cells marked; the rest as usual."""
+    low = {m: {"iou_ss": 0.20} for m in ("compact_1l", "compact_15l", "compact_15l_mgn", "compact_15l_mgn_authors")}
+    bases = bases_with(gradnorm_segnet={"iou_ss": 0.30}, **low)
+    bases["compact_1l"]["iou_ls"] = 0.19
+    _tree(tmp_path, ("A",), bases=bases, jitter=JITTER)
+    rows = {r.row_id: r for r in build_table2(_results(tmp_path, ("A",)), _frames(tmp_path, ("A",)),
+                                               floors=_floors(tmp_path, ("A",)))["A"]}
+    gn, one = rows["gradnorm_segnet"], rows["compact_1l"]
+    assert not any("iou_ss" in r.bold for r in rows.values())
+    assert gn.notes["iou_ss"] == "best IoU_SS, not above the floor on SS (not shown above): not bold"
+    assert gn.floor["iou_ss"] == "not shown above" and gn.above_floor == "no: SS"
+    assert one.floor["iou_ss"] == one.floor["iou_ls"] == "below" and one.above_floor == "no: SS, LS"
+    assert rows["polarnet"].bold == {"iou_ls"} and rows["chen_bev"].bold == {"iou_bevp"}
+    assert "tm" not in rows["combination"].bold                       # the combination's SS is GradNorm's
+    assert rows["combination"].notes["tm"] == "best TM, not above the floor on SS (not shown above): not bold"
+    md = table2_markdown({"A": list(rows.values())})
+    assert f"{gn.cells['iou_ss'].mean:.3f} ± {gn.cells['iou_ss'].std:.3f}°†" in md
+    assert f"{one.cells['iou_ls'].mean:.3f} ± {one.cells['iou_ls'].std:.3f}↓" in md and "| no: SS, LS |" in md
+    assert "**below the floor**" in md
+
+
+def test_column_interval_matches_the_difference_of_means(tmp_path: Path) -> None:
+    _tree(tmp_path, ("A",), jitter=JITTER)
     frames = _frames(tmp_path, ("A",))["A"]
     assert len(frames["compact_15l_mgn"]) == 3
-    r = column_bootstrap("compact_15l_mgn", "compact_15l", "iou_ls", frames)
+    r = column_interval("compact_15l_mgn", "compact_15l", "iou_ls", frames)
     diff = np.mean([df["iou_ls"].mean() for df in frames["compact_15l_mgn"]]) - np.mean(
         [df["iou_ls"].mean() for df in frames["compact_15l"]])
     assert r is not None and r.estimate == pytest.approx(diff) and r.ci_low > 0 and r.n_seeds == (3, 3)
-    comb = column_bootstrap("combination", "compact_15l_mgn_authors", "tm", frames)
+    assert r.paired and r.n_clusters == N_FRAMES // 10 and r.method == "seed-cluster-t"
+    comb = column_interval("combination", "compact_15l_mgn_authors", "tm", frames)
     assert comb is not None and comb.ci_low > 0
-    assert column_bootstrap("polarnet", "compact_15l", "tm", frames) is None     # PolarNet has no TM
+    assert column_interval("polarnet", "compact_15l", "tm", frames) is None     # PolarNet has no TM
+
+
+def test_training_text_says_how_deep_and_why_it_stopped() -> None:
+    from compact_perception.report.tables.formats import training_text
+
+    one = {"epochs_run": 12, "best_epoch": 8, "stop_reason": "plateau"}
+    assert training_text([one, one, one]) == "12 (best 8), plateau"
+    mixed = [one, {"epochs_run": 15, "best_epoch": 11, "stop_reason": "plateau"},
+             {"epochs_run": 20, "best_epoch": 20, "stop_reason": "max_epochs"}]
+    assert training_text(mixed) == "12/15/20 (best 8/11/20), max_epochs x1, plateau x2"
+    assert training_text([{"epochs_run": 3, "best_epoch": 2}]) == "3 (best 2)"      # an older summary.json
+    assert training_text([one, {"epochs_run": 12, "best_epoch": 8}]) == "12 (best 8), plateau x1"
+    assert training_text([]) == ""
 
 
 def test_table2_missing_model_row_is_na(tmp_path: Path) -> None:
@@ -275,7 +332,7 @@ def test_table2_missing_model_row_is_na(tmp_path: Path) -> None:
     rows = {r.row_id: r for r in tables["A"]}
     assert not rows["polarnet"].available and not rows["combination"].available
     assert rows["combination"].cells["tm"] is None and rows["combination"].cells["mae_de"] is not None
-    assert "|  | PolarNet |  | n/a | n/a |" in table2_markdown(tables)
+    assert "|  | PolarNet |  |  | n/a | n/a |" in table2_markdown(tables)
 
 
 def test_bad_metrics_file_names_the_file(tmp_path: Path) -> None:
@@ -368,16 +425,52 @@ def test_build_reports_end_to_end(tmp_path: Path) -> None:
     header = (out / "tables/table2.csv").read_text().splitlines()[0].split(",")
     assert header[:10] == ["dataset", "row_id", "label", "available", "n_seeds", "seeds", "n_test_frames",
                            "mae_de_mean", "mae_de_std", "mae_de_var"]
-    # headline: TM of 15L+MGN (authors' code), mean over seeds, 4 decimals; the verdict counts
+    # the arg-max rule beside eq. (5): the fixture's arg-max IoUs are ARGMAX_GAIN above, by hand
+    gn = [r for r in extra if r["dataset"] == "A" and r["row_id"] == "gradnorm_segnet"][0]
+    want = np.mean([mets[("A", "gradnorm_segnet", k)]["iou_ss"]["mean"] for k in SEEDS]) + ARGMAX_GAIN
+    assert float(gn["iou_ss_argmax_mean"]) == pytest.approx(want, abs=1e-9) and gn["iou_ls_argmax_mean"] == ""
+    pn = [r for r in extra if r["dataset"] == "A" and r["row_id"] == "polarnet"][0]
+    assert float(pn["iou_ls_argmax_mean"]) == pytest.approx(0.90 + np.mean([-0.01, 0.0, 0.02]) + ARGMAX_GAIN)
+    assert [r["row_id"] for r in extra[:2]] == list(FLOORS) and extra[0]["fixed"] == "1"
+    extra_md = (out / "tables/extra_metrics.md").read_text()
+    assert "IoU_SS (arg-max) (mean ± sd)" in extra_md and "**arg-max rule**" in extra_md
+
+
+def test_headline_and_the_floor_in_the_index(tmp_path: Path) -> None:
+    """reports/metrics.json holds at most 20 numbers: the verdict counts over the decidable rows,
+    the exact counts apart, set A's compact models' TM margins over the floor (by hand: floor TM
+    2.50 minus the model's), TM of 15L+MGN (authors' code); the index says it in words."""
+    mets = _tree(tmp_path)
+    build_reports(tmp_path, tmp_path / "reports", datasets=("A", "nuscenes"), models=MODELS, scale_name="default",
+                  seeds=SEEDMAP)
+    out = tmp_path / "reports"
+    index = (out / "index.md").read_text()
+    claims = list(csv.DictReader((out / "tables/claims.csv").open()))
     head = json.loads((out / "metrics.json").read_text())
-    assert HEADLINE_MODEL == "compact_15l_mgn_authors" and set(head) == {HEADLINE_KEY, "claims"}
+    assert HEADLINE_MODEL == "compact_15l_mgn_authors"
+    assert list(head) == ["claims", "exact_counts", "tm_margin_A", HEADLINE_KEY]
+    assert sum(len(v) for v in head.values()) <= 20
     for ds in ("A", "nuscenes"):
         want = np.mean([mets[(ds, HEADLINE_MODEL, k)]["tm"]["mean"] for k in SEEDS])
         assert head[HEADLINE_KEY][ds] == round(want, 4)
-    counts = {v: sum(r["verdict"] == v for r in claims) for v in ("reproduced", "contradicted", "inconclusive")}
-    assert head["claims"] == {**counts, "no_data": sum(r["verdict"] == "no data" for r in claims)}
-    assert sum(head["claims"].values()) == len(claims)
-    assert len(json.dumps(head)) < 200
+    judged = [r for r in claims if not r["claim"].startswith("efficiency/")]
+    assert head["claims"] == {v.replace(" ", "_"): sum(r["verdict"] == v for r in judged)
+                              for v in ("reproduced", "contradicted", "inconclusive", "not decidable")}
+    assert sum(head["exact_counts"].values()) == len(claims) - len(judged) == 8
+    floor_tm = 0.30 + 3 - 0.30 - 0.20 - 0.30                                    # report_fixture FLOOR_BASES
+    for m in COMPACT:
+        tm = np.mean([mets[("A", m, k)]["tm"]["mean"] for k in SEEDS])
+        assert head["tm_margin_A"][m] == pytest.approx(round(floor_tm - tm, 4), abs=1e-9)
+    # the index: the headline in words, one sentence per dataset on the floor
+    assert "## Above the floor" in index and "Set A (floor TM 2.500 (Floor (per-pixel prior))): above the floor " \
+        "on every task it performs: Chen et al., PolarNet, GradNorm, 1L, 15L, 15L+MGN (Alg. 1), 15L+MGN " \
+        "(authors' code)." in index
+    assert "`tm_margin_A`: TM margin over the floor on Set A" in index
+    assert "**Method and measured coverage**: intervals: seed-cluster-t" in index
+    counts = head["claims"]
+    assert (f"that this run can decide (every model compared above the trivial-predictor floor on the claim's metrics, "
+            f"at least 3 seeds a side): {counts['reproduced']} reproduced, {counts['contradicted']} contradicted, "
+            f"{counts['inconclusive']} inconclusive; {counts['not_decidable']} not decidable") in index
 
 
 def test_plots_csv_one_row_per_run_and_epoch(tmp_path: Path) -> None:
@@ -402,6 +495,12 @@ def test_plots_csv_one_row_per_run_and_epoch(tmp_path: Path) -> None:
     got_w = [(r["run"], r["task"], int(r["epoch"])) for r in w]
     assert len(got_w) == len(set(got_w)) and set(got_w) == want_w
     assert not any("seed9" in r for r, _ in got)
+    # seed lists per dataset ({ds: {model: seeds}}, params.seeds_of(group, dataset)): set A at seed 0 only
+    per_ds = {"A": seed_map((0,), (0,)), "nuscenes": seeds}
+    write_plot_data(tmp_path, ("A", "nuscenes"), MODELS, tmp_path / "plots2", per_ds)
+    runs2 = {r["run"] for r in csv.DictReader((tmp_path / "plots2/val_tm.csv").open())}
+    assert {r for r in runs2 if r.startswith("A/")} == {f"A/{m}/seed0" for m in MODELS}
+    assert {r for r in runs2 if r.startswith("nuscenes/")} == {r for r, _ in got if r.startswith("nuscenes/")}
 
 
 @pytest.mark.parametrize("name,template,y,extra", [("val_tm.csv", "by_run", "val_tm", None),

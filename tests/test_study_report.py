@@ -37,7 +37,8 @@ def _tree(root: Path, *, single_bevp: bool = True) -> None:
     - single-task references (own task, mean over seeds): MAE_DE 0.10 (0.09, 0.10, 0.11),
       IoU_SS 0.50 (0.49, 0.50, 0.51), IoU_LS 0.50, IoU_BEVP 0.50 (0.45, 0.50, 0.55);
     - gradnorm at seeds 0, 1 (seed 2 missing); uw at seed 0 only; pcgrad at seed 0 without
-      weight logs; dwa and cagrad without runs.
+      weight logs; dwa at three seeds, IoU_BEVP 0.30 (below the floor's 0.35, report_fixture
+      FLOOR_BASES); cagrad without runs.
     """
     build_tree(root, ("A",), n_frames=20, models=PAPER)
     refs = {"de": (0.09, 0.10, 0.11), "ss": (0.49, 0.50, 0.51), "ls": (0.50, 0.50, 0.50), "bevp": (0.45, 0.50, 0.55)}
@@ -54,6 +55,8 @@ def _tree(root: Path, *, single_bevp: bool = True) -> None:
                     epochs_run=4)
     write_study_run(root, "uw", 0, "A", _means(0.10, 0.50, 0.50, 0.50), weights=W)
     write_study_run(root, "pcgrad", 0, "A", _means(0.10, 0.50, 0.50, 0.50))
+    for k in SPEC.seeds:
+        write_study_run(root, "dwa", k, "A", _means(0.10, 0.55, 0.55, 0.30), weights=W)
 
 
 def _rows(path: Path) -> dict[str, dict[str, str]]:
@@ -101,14 +104,15 @@ def test_rows_mean_sd_csv_and_figure(tmp_path: Path, caplog: pytest.LogCaptureFi
     rows = _rows(out.csv)
     header = out.csv.read_text().splitlines()[0].split(",")
     metrics = ("mae_de", "iou_ss", "iou_ls", "iou_bevp", "tm", "mv", "dm", "sec_per_epoch")
-    assert header == ["dataset", "method", "label", "n_seeds"] + [f"{k}_{s}" for k in metrics for s in ("mean", "sd")]
-    # paper forms first, then the arms with runs, in arm order; dwa and cagrad have none
-    assert list(rows) == list(PAPER) + ["gradnorm", "uw", "pcgrad", "single_de", "single_ss", "single_ls",
+    assert header == (["dataset", "method", "label", "n_seeds"] + [f"{k}_{s}" for k in metrics for s in ("mean", "sd")]
+                      + ["above_floor"])
+    # paper forms first, then the arms with runs, in arm order; cagrad has none
+    assert list(rows) == list(PAPER) + ["gradnorm", "uw", "dwa", "pcgrad", "single_de", "single_ss", "single_ls",
                                         "single_bevp"]
     # 15L: Δm per seed = 12.5 + 400 s_k (seed 1: (+0.1 + 0.3 + 0 + 0.1) / 4 = 12.5 %; a shift s adds
     # 10 s (DE) + 3 x 2 s (IoUs), / 4 -> 4 s): 8.5, 12.5, 20.5 -> mean 13.8333, sd sqrt(74.667 / 2) = 6.1101
     r = rows["compact_15l"]
-    assert r["label"] == "15L (equal static weights)" and r["n_seeds"] == "3"
+    assert r["label"] == "15L (equal static weights)" and r["n_seeds"] == "3" and r["above_floor"] == "yes"
     assert float(r["dm_mean"]) == pytest.approx(41.5 / 3, abs=1e-4)
     assert float(r["dm_sd"]) == pytest.approx(math.sqrt(74.6667 / 2), abs=1e-4)
     assert float(r["mae_de_mean"]) == pytest.approx((0.10 + 0.09 + 0.07) / 3, abs=1e-6)
@@ -116,24 +120,31 @@ def test_rows_mean_sd_csv_and_figure(tmp_path: Path, caplog: pytest.LogCaptureFi
     tm = [0.09 - s + 3 - (0.65 + s) - (0.50 + s) - (0.55 + s) for s in (-0.01, 0.0, 0.02)]
     assert float(r["tm_mean"]) == pytest.approx(np.mean(tm), abs=1e-6)
     assert float(r["tm_sd"]) == pytest.approx(np.std(tm, ddof=1), abs=1e-6)
-    # gradnorm, seeds 0 and 1: Δm -2.5 % and 10.0 % (test_delta_m_by_hand) -> 3.75 ± 12.5 / sqrt(2);
+    # gradnorm, seeds 0 and 1: 2 seeds, not shown above the floor (fewer than 3): no Δm;
     # s / epoch 10 / 5 = 2.0 and 12 / 4 = 3.0 -> 2.5 ± 0.7071; MAE_DE 0.12, 0.08 -> 0.10 ± 0.02828
     g = rows["gradnorm"]
     assert g["label"] == "GradNorm (Chen et al. 2018)" and g["n_seeds"] == "2"
-    assert float(g["dm_mean"]) == pytest.approx(3.75) and float(g["dm_sd"]) == pytest.approx(12.5 / math.sqrt(2))
+    assert g["dm_mean"] == ""
+    assert g["above_floor"].startswith("no: DE (not shown above: 2 seeds), SS (not shown above: 2 seeds)")
     assert float(g["sec_per_epoch_mean"]) == pytest.approx(2.5) and float(g["sec_per_epoch_sd"]) == pytest.approx(
         math.sqrt(0.5))
     assert float(g["mae_de_sd"]) == pytest.approx(0.04 / math.sqrt(2), abs=1e-6)
-    # one seed: no sd; the references: Δm empty
-    assert rows["uw"]["n_seeds"] == "1" and rows["uw"]["dm_sd"] == ""
-    assert float(rows["uw"]["dm_mean"]) == pytest.approx(0.0, abs=1e-9)
+    # one seed: no sd, not above the floor; three seeds but IoU_BEVP below the floor's: no Δm either
+    assert rows["uw"]["n_seeds"] == "1" and rows["uw"]["dm_sd"] == "" and rows["uw"]["dm_mean"] == ""
+    dwa = rows["dwa"]
+    assert dwa["n_seeds"] == "3" and dwa["dm_mean"] == "" and dwa["above_floor"] == "no: BEVP (below)"
+    # the references: Δm empty, each checked on its own task only
     assert rows["single_de"]["label"] == "Single-task (DE)" and rows["single_de"]["dm_mean"] == ""
+    assert rows["single_de"]["above_floor"] == "yes"
     assert float(rows["single_de"]["mae_de_mean"]) == pytest.approx(0.10)
     md = out.markdown.read_text()
     assert "Δm" in md and "LibMTL" in md and "seeds`: 0, 1, 2" in md and "**" not in md.split("## Set A")[1]
-    assert "±2 sd are not separated" in md and "No runs yet: DWA (Liu et al. 2019), CAGrad (Liu et al. 2021)." in md
-    assert "| GradNorm (Chen et al. 2018) | 2 | 0.100 ± 0.028 |" in md and "3.8 ± 8.8 | 2.50 ± 0.71 |" in md
+    assert "±2 sd are not separated" in md and "No runs yet: CAGrad (Liu et al. 2021)." in md
+    assert "| GradNorm (Chen et al. 2018) | 2 | 0.100 ± 0.028 |" in md and "below floor | 2.50 ± 0.71 |" in md
     assert "| Uncertainty weighting (Kendall et al. 2018) | 1 | 0.100 ± — |" in md
+    assert ("Not above the floor on every task (Δm not reported): GradNorm (Chen et al. 2018) "
+            "(DE (not shown above: 2 seeds)") in md
+    assert "DWA (Liu et al. 2019) (BEVP (below))" in md and "above the trivial-predictor floor on every task" in md
     assert "Reference (single-task, own task, mean over seeds): MAE_DE 0.100, IoU_SS 0.500" in md
     # the figure: MGN first, gradnorm and uw beside it; pcgrad logged no weights (skipped, logged)
     png = out.figures["A"]
@@ -151,7 +162,8 @@ def test_missing_reference_gives_na_with_note(tmp_path: Path) -> None:
     assert rows["compact_15l"]["tm_mean"] != ""
     md = out.markdown.read_text()
     assert "Δm n/a: no single-task reference for IoU_BEVP (single_bevp: no runs)." in md
-    assert "| n/a | 2.50 ± 0.71 |" in md
+    assert "| n/a | 0.26 ± 0.07 |" in md          # 15L: above the floor, but no reference
+    assert "| below floor | 2.50 ± 0.71 |" in md  # gradnorm: the gate first
 
 
 def test_nothing_trained_yet_writes_empty_tables(tmp_path: Path) -> None:

@@ -6,12 +6,17 @@ Inputs (ARCHITECTURE.md / SPEC 2), per run (one training seed ``k`` of a (datase
   "n_frames", "source", "device"}`` with the keys of the tasks the model performs; ``tm`` is
   ``{"mean", "var"}``, ``mv`` is ``{"value", "definition"}`` (one number: eq. 7 of the four
   test-set means); older files with ``{"mean", "var"}`` or a plain float are read too; the
-  optional ``class_iou`` and ``depth`` blocks (metrics beyond the paper's) go to
-  :attr:`ModelResult.extra`;
+  optional ``class_iou``, ``depth`` and ``argmax`` blocks (metrics beyond the paper's; ``argmax``:
+  the class maps scored by the arg-max rule) go to :attr:`ModelResult.extra`;
+- ``results/<ds>/<trivial id>/metrics.json`` and ``data/eval/<ds>/<trivial id>/per_frame.csv``:
+  the trivial predictors of the floor (:data:`compact_perception.floor.TRIVIAL`, no seed;
+  :func:`load_floor_results`, :func:`load_floor_frames`);
 - ``data/eval/<ds>/<model>/seed<k>/per_frame.csv``: one row per test frame (``frame_id`` and
   the scores), read by :func:`load_frames` for the bootstrap statistics; ``inputs.npz`` and
   ``predictions.npz`` beside it (the qualitative figures);
-- ``runs/<ds>/<model>/seed<k>/summary.json`` and the dvclive TSVs under ``…/seed<k>/live``;
+- ``runs/<ds>/<model>/seed<k>/summary.json`` (``epochs_run``, ``best_epoch``, ``stop_reason``:
+  ``plateau`` when early stopping ended it, ``max_epochs`` when the cap did; ``final_weights``)
+  and the dvclive TSVs under ``…/seed<k>/live``;
 - ``results/benchmark/efficiency.json`` (written by ``pipeline/benchmark.py``);
 - ``data/cache/<ds>/meta.json`` (frame counts, resolution, source).
 
@@ -21,7 +26,13 @@ Runs: :func:`list_runs` is the one place of the report that knows which runs (se
 list of params.yaml (``seeds`` for the compact models, ``baseline_seeds`` for the baselines) it
 lists exactly those seeds' runs that exist: a stale ``seed<k>`` folder of a seed no longer in the
 list is ignored. Without a seed list (``None``) it lists every ``seed<k>`` folder. Every loader
-below takes the seeds through it.
+below takes the seeds through it, and the seed list of a (dataset, model) through
+:func:`seeds_for` (per model, or per dataset and model).
+
+Comparisons (:func:`frame_comparison`): the per-frame scores of several rows on the frames all of
+them scored, each row's runs keyed by training seed, and each frame's cluster (its episode or
+scene, :func:`compact_perception.core.cache.frame_cluster`): the input of
+:func:`compact_perception.stats.interval`.
 
 Over seeds (:func:`aggregate_runs`): each metric's run-level value (a run's test-set mean; TM and
 MV of the run's four test-set means, eq. 6-7 via :func:`compact_perception.metrics.scores_from_means`)
@@ -42,18 +53,21 @@ import numpy as np
 import pandas as pd
 
 from ..core import catalog
-from ..core.layout import RunPaths, run_paths
+from ..core.cache import frame_cluster
+from ..core.layout import RunPaths, floor_paths, run_paths
 from ..metrics import scores_from_means
-from .schema import COMBINATION, COMBINATION_SOURCE, PER_FRAME_COLUMNS, TABLE2_COLUMNS, TASK_COLUMNS
+from ..stats import Comparison, Group, make_comparison
+from .schema import COMBINATION, COMBINATION_SOURCE, FLOOR_IDS, PER_FRAME_COLUMNS, TABLE2_COLUMNS, TASK_COLUMNS
 
 log = logging.getLogger(__name__)
 
-#: Seed lists: per model id (params ``seeds`` / ``baseline_seeds`` by model group), one list
-#: for every model, or ``None`` (every ``seed<k>`` folder found).
-SeedSpec = Optional[Mapping[str, Sequence[int]] | Sequence[int]]
+#: Seed lists: per model id (params ``seeds`` / ``baseline_seeds`` by model group), per dataset
+#: and model id (``{ds: {model: seeds}}``), one list for every model, or ``None`` (every
+#: ``seed<k>`` folder found); :func:`seeds_for` reads it.
+SeedSpec = Optional[Mapping[str, Any] | Sequence[int]]
 
 #: Blocks of metrics.json beyond the paper's (written by ``compact_perception.evaluate``).
-EXTRA_KEYS: tuple[str, ...] = ("class_iou", "depth")
+EXTRA_KEYS: tuple[str, ...] = ("class_iou", "depth", "argmax")
 
 
 class ReportInputError(ValueError):
@@ -149,11 +163,14 @@ def read_metrics(path: Path, dataset: str = "", model: str = "") -> ModelResult:
                        extra)
 
 
-def seeds_for(seeds: SeedSpec, model: str) -> Optional[tuple[int, ...]]:
-    """The seed list of ``model`` in ``seeds`` (``None``: every seed folder found)."""
+def seeds_for(seeds: SeedSpec, model: str, dataset: str) -> Optional[tuple[int, ...]]:
+    """The seed list of ``model`` (on ``dataset``) in ``seeds``: the one lookup of the report
+    (``None``: every seed folder found)."""
     if seeds is None:
         return None
     if isinstance(seeds, Mapping):
+        if isinstance(seeds.get(dataset), Mapping):
+            seeds = seeds[dataset]
         if model not in seeds:
             return None
         return tuple(int(k) for k in seeds[model])
@@ -245,7 +262,7 @@ def load_results(root: Path, datasets: Sequence[str], models: Sequence[str], see
     for ds in datasets:
         out[ds] = {}
         for m in models:
-            runs = load_model_runs(root, ds, m, seeds_for(seeds, m))
+            runs = load_model_runs(root, ds, m, seeds_for(seeds, m, ds))
             if runs:
                 out[ds][m] = aggregate_runs(runs)
             else:
@@ -291,6 +308,14 @@ def load_npz(path: Path) -> Optional[dict[str, np.ndarray]]:
         raise ReportInputError(f"{path}: unreadable npz ({err})") from None
 
 
+#: The facts of a run's ``summary.json`` the report shows (how deep it trained).
+SUMMARY_FACTS: tuple[str, ...] = ("epochs_run", "best_epoch", "max_epochs", "stop_reason", "train_seconds",
+                                  "stopped_early")
+#: ``stop_reason`` of a run that converged: early stopping ended it (validation stopped improving
+#: for ``train.early_stop_patience`` epochs); ``max_epochs`` means the safety cap did.
+CONVERGED = "plateau"
+
+
 @dataclass
 class DatasetScale:
     """What this run did on one dataset (for the paper-vs-reproduced table and the index)."""
@@ -324,11 +349,10 @@ def collect_scale(root: Path, datasets: Sequence[str], models: Sequence[str],
             sc.source = catalog.source_label(src) if src else None
         for m in models:
             facts = []
-            for run in list_runs(root, ds, m, seeds_for(seeds, m)):
+            for run in list_runs(root, ds, m, seeds_for(seeds, m, ds)):
                 summ = read_summary(run.run_dir)
                 if summ:
-                    facts.append({"seed": run.seed, **{k: summ.get(k) for k in (
-                        "epochs_run", "best_epoch", "max_epochs", "train_seconds", "stopped_early")}})
+                    facts.append({"seed": run.seed, **{k: summ.get(k) for k in SUMMARY_FACTS}})
             if facts:
                 sc.epochs[m] = facts
         if results and ds in results:
@@ -451,26 +475,73 @@ def combination_frames(frames: dict[str, list[pd.DataFrame]]) -> list[pd.DataFra
     return out
 
 
-def align(groups: Sequence[Sequence[pd.DataFrame]], columns: Sequence[str]) -> list[list[np.ndarray]]:
-    """The (frames, columns) arrays of every run of every group on the frames all of them
-    scored (sorted by frame id), for a paired bootstrap."""
+def common_frames(groups: Sequence[Sequence[pd.DataFrame]]) -> pd.Index:
+    """The frame ids every run of every group scored, sorted (errors if there is none)."""
     common: Optional[pd.Index] = None
     for g in groups:
         for df in g:
             common = df.index if common is None else common.intersection(df.index)
     if common is None or len(common) == 0:
         raise ReportInputError("per-frame scores: the runs compared share no test frame")
-    common = common.sort_values()
+    return common.sort_values()
+
+
+def align(groups: Sequence[Sequence[pd.DataFrame]], columns: Sequence[str]) -> list[list[np.ndarray]]:
+    """The (frames, columns) arrays of every run of every group on the frames all of them
+    scored (sorted by frame id)."""
+    common = common_frames(groups)
     return [[df.loc[common, list(columns)].to_numpy(dtype=float) for df in g] for g in groups]
+
+
+def frame_comparison(groups: Sequence[Sequence[pd.DataFrame]], columns: Sequence[str],
+                     fixed: Sequence[bool] = ()) -> Comparison:
+    """The :class:`~compact_perception.stats.Comparison` of ``groups`` (one per row compared, its
+    runs) on ``columns``: the frames all runs scored (:func:`common_frames`), each group's runs
+    keyed by training seed (``df.attrs["seed"]``), the frames' clusters from their ids (episode or
+    scene, :func:`~compact_perception.core.cache.frame_cluster`). ``fixed[g]``: group g is a
+    deterministic predictor (the floor), one run without training randomness."""
+    common = common_frames(groups)
+    out = []
+    for gi, g in enumerate(groups):
+        keys = [df.attrs.get("seed") for df in g]
+        keys = keys if all(isinstance(k, int) for k in keys) and len(set(keys)) == len(keys) else list(range(len(g)))
+        runs = {int(k): df.loc[common, list(columns)].to_numpy(dtype=float) for k, df in zip(keys, g)}
+        out.append(Group(runs, bool(fixed[gi]) if gi < len(fixed) else False))
+    return make_comparison(out, [frame_cluster(str(f)) for f in common])
 
 
 def load_row_frames(root: Path, dataset: str, models: Sequence[str], seeds: SeedSpec = None
                     ) -> dict[str, list[pd.DataFrame]]:
     """Per-frame scores of every model of ``dataset`` with any (all its runs of ``seeds``), plus
     the ``combination`` of baselines (:func:`combination_frames`) when its three sources have them."""
-    frames = {m: load_frames(root, dataset, m, seeds=seeds_for(seeds, m)) for m in models}
+    frames = {m: load_frames(root, dataset, m, seeds=seeds_for(seeds, m, dataset)) for m in models}
     frames = {m: f for m, f in frames.items() if f}
     comb = combination_frames(frames)
     if comb:
         frames[COMBINATION] = comb
     return frames
+
+
+# ----------------------------------------------------------------------------- the floor
+def load_floor_results(root: Path, dataset: str) -> dict[str, ModelResult]:
+    """The ``metrics.json`` of every trivial predictor of ``dataset`` that has one (:data:`~.schema.FLOOR_IDS`
+    order; TM and MV of its four means, :func:`with_derived`)."""
+    out = {}
+    for tid in FLOOR_IDS:
+        path = floor_paths(dataset, tid, root).metrics_path
+        if path.is_file():
+            out[tid] = with_derived(read_metrics(path, dataset, tid))
+    if not out:
+        log.warning("%s: no trivial-predictor results (results/%s/<%s>/metrics.json): no floor", dataset, dataset,
+                    "|".join(FLOOR_IDS))
+    return out
+
+
+def load_floor_frames(root: Path, dataset: str) -> dict[str, pd.DataFrame]:
+    """The per-frame scores of every trivial predictor of ``dataset`` that has them (one run each)."""
+    out = {}
+    for tid in FLOOR_IDS:
+        path = floor_paths(dataset, tid, root).eval_dir / "per_frame.csv"
+        if path.is_file():
+            out[tid] = read_per_frame(path)
+    return out

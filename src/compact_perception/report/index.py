@@ -33,15 +33,16 @@ from pathlib import Path
 from typing import Any, Optional, Sequence
 
 from ..core import io
-from ..core.catalog import dataset_ids, model_ids
+from ..core.catalog import MODELS, compact_model_ids, dataset_ids, metric_of, model_ids
 from ..core.layout import RunPaths
-from .claims import build_claims, claims_files, verdict_counts
-from .collect import (DatasetScale, ModelResult, SeedSpec, collect_scale, list_runs, load_npz, load_results,
-                      load_row_frames, read_json, seeds_for)
+from .claims import build_claims, claims_files, coverage_text, exact_counts, verdict_counts
+from .collect import (DatasetScale, ModelResult, SeedSpec, collect_scale, list_runs, load_floor_frames,
+                      load_floor_results, load_npz, load_results, load_row_frames, read_json, seeds_for)
+from .gate import DatasetFloor, Gate
 from .figures import plot_loss_weights, plot_qualitative, plot_training_curves
 from .paper import PaperNumbers, load_paper_numbers
 from .plots import write_plot_data
-from .schema import DATASET_LABEL, MGN_FORMS, ROW_LABEL, ROW_ORDER
+from .schema import DATASET_LABEL, FLOOR_LABEL, METRIC_TASK, MGN_FORMS, ROW_LABEL, ROW_ORDER
 from .study import StudyOutputs, study_run_dirs, write_study_report
 from .tables.comparison import SPLITS, comparison_files, scale_lines
 from .tables.extra import build_extra_rows, extra_files
@@ -56,6 +57,12 @@ log = logging.getLogger(__name__)
 HEADLINE_MODEL = "compact_15l_mgn_authors"
 HEADLINE_KEY = "tm_mgn_authors"
 HEADLINE_DECIMALS = 4
+#: The dataset whose compact models' TM margins over the floor the headline gives (the first:
+#: set A, where issue 23's acceptance asks every compact variant to be above the floor).
+MARGIN_DATASET = dataset_ids()[0]
+MARGIN_KEY = f"tm_margin_{MARGIN_DATASET}"
+#: At most this many numbers (flattened keys) in ``reports/metrics.json``: `dvc exp show` fits a terminal.
+HEADLINE_MAX_KEYS = 20
 #: Figures of the index per dataset: key -> title (``world`` and ``lidar`` come from other stages).
 FIGURE_TITLES: dict[str, str] = {
     "world": "One frame of the simulated world, all sensors and ground truths (Fig. 1)",
@@ -82,6 +89,7 @@ class ReportInputs:
     frames: dict[str, RowFrames]                     # dataset -> row id -> per-frame scores per run
     efficiency: Optional[dict[str, Any]]             # results/benchmark/efficiency.json (None: not run)
     scales: dict[str, DatasetScale]
+    gates: dict[str, Gate] = field(default_factory=dict)   # dataset -> its floor and the rows' margins
 
 
 @dataclass
@@ -101,6 +109,7 @@ class ReportParts:
     claims_md: Optional[str] = None
     extra_md: Optional[str] = None
     headline: Optional[dict[str, Any]] = None
+    gates: dict[str, Gate] = field(default_factory=dict)
     study: Optional[StudyOutputs] = None
     study_figures: dict[str, str] = field(default_factory=dict)
     figures: dict[str, dict[str, str]] = field(default_factory=dict)
@@ -108,8 +117,8 @@ class ReportParts:
 
 def read_inputs(root: Path, datasets: Sequence[str], models: Sequence[str], seeds: SeedSpec,
                 paper: PaperNumbers) -> ReportInputs:
-    """Every run's metrics and per-frame scores of the seeds ``seeds``, the benchmark's file and
-    each dataset's scale (:mod:`.collect`)."""
+    """Every run's metrics and per-frame scores of the seeds ``seeds``, the benchmark's file,
+    each dataset's scale and trivial predictors (:mod:`.collect`), and its gate (:mod:`.gate`)."""
     root = Path(root)
     results = load_results(root, list(datasets), list(models), seeds)
     eff_path = root / "results" / "benchmark" / "efficiency.json"
@@ -117,20 +126,41 @@ def read_inputs(root: Path, datasets: Sequence[str], models: Sequence[str], seed
     if efficiency is None:
         log.warning("%s missing: Table III skipped", eff_path)
     frames = {ds: load_row_frames(root, ds, list(models), seeds) for ds in datasets}
+    gates = {ds: Gate(DatasetFloor(ds, load_floor_results(root, ds), load_floor_frames(root, ds)), frames[ds])
+             for ds in datasets}
     return ReportInputs(root, list(datasets), list(models), seeds, paper, results, frames, efficiency,
-                        collect_scale(root, list(datasets), list(models), results, seeds))
+                        collect_scale(root, list(datasets), list(models), results, seeds), gates)
 
 
-def headline_metrics(results: dict[str, dict[str, ModelResult]], claim_rows: Sequence[Any]) -> dict[str, Any]:
-    """``reports/metrics.json``: TM of :data:`HEADLINE_MODEL` per dataset (mean over its seeds,
-    4 decimals; datasets without results left out) and the scorecard's verdict counts."""
+def _flat_keys(obj: Any) -> int:
+    """The number of leaves of a nested dict (the columns `dvc exp show` gives it)."""
+    return sum(_flat_keys(v) for v in obj.values()) if isinstance(obj, dict) else 1
+
+
+def headline_metrics(results: dict[str, dict[str, ModelResult]], claim_rows: Sequence[Any],
+                     gates: Optional[dict[str, Gate]] = None) -> dict[str, Any]:
+    """``reports/metrics.json`` (at most :data:`HEADLINE_MAX_KEYS` numbers): ``claims``, the verdict
+    counts of the claims judged on test scores (reproduced, contradicted, inconclusive: the rows
+    the run can decide; and not_decidable); ``exact_counts``, Table III's apart; ``tm_margin_<A>``,
+    the TM margin over the floor (positive = better) of every compact model of
+    :data:`MARGIN_DATASET`, mean over its seeds; TM of :data:`HEADLINE_MODEL` per dataset (mean
+    over its seeds); 4 decimals; datasets and models without results left out."""
     tm = {}
     for ds, res in results.items():
         r = res.get(HEADLINE_MODEL)
         cell = r.scores.get("tm") if r is not None else None
         if cell is not None:
             tm[ds] = round(float(cell.mean), HEADLINE_DECIMALS)
-    return {HEADLINE_KEY: tm, "claims": verdict_counts(claim_rows)}
+    out: dict[str, Any] = {"claims": verdict_counts(claim_rows), "exact_counts": exact_counts(claim_rows)}
+    gate = (gates or {}).get(MARGIN_DATASET)
+    margins = {m: gate.margin(m, "tm").estimate for m in compact_model_ids()} if gate is not None else {}
+    margins = {m: round(v, HEADLINE_DECIMALS) for m, v in margins.items() if v is not None}
+    if margins:
+        out[MARGIN_KEY] = margins
+    out[HEADLINE_KEY] = tm
+    if _flat_keys(out) > HEADLINE_MAX_KEYS:
+        raise ValueError(f"reports/metrics.json: {_flat_keys(out)} numbers, expected at most {HEADLINE_MAX_KEYS}")
+    return out
 
 
 # ----------------------------------------------------------------------------- index.md
@@ -174,19 +204,70 @@ def _seeds_overview(results: dict[str, dict[str, ModelResult]], scales: dict[str
     return out
 
 
-def _headline_section(headline: Optional[dict[str, Any]]) -> list[str]:
-    if headline is None:
+def _counts(counts: dict[str, int]) -> str:
+    return ", ".join(f"{v} {k.replace('_', ' ')}" for k, v in counts.items())
+
+
+def _headline_section(parts: ReportParts) -> list[str]:
+    """The headline numbers of ``metrics.json`` in words, with the TM margins' intervals."""
+    head = parts.headline
+    if head is None:
         return []
-    tm = headline.get(HEADLINE_KEY) or {}
-    counts = headline.get("claims") or {}
-    return ["## Headline", "",
-            f"[`metrics.json`](metrics.json) (the pipeline's one DVC metrics file, `dvc metrics show` / "
-            f"`dvc exp show`): `{HEADLINE_KEY}` = TM of {ROW_LABEL.get(HEADLINE_MODEL, HEADLINE_MODEL)} "
-            "(the paper's proposed model in the form that produced its Table II), mean over its seeds, per "
-            "dataset: " + (", ".join(f"{DATASET_LABEL.get(d, d)} {v:.4f}" for d, v in tm.items()) or "none")
-            + "; `claims`: scorecard rows per verdict: "
-            + ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in counts.items()) + ". Every run's scores: "
-            "`results/<ds>/<model>/seed<k>/metrics.json`.", ""]
+    tm = head.get(HEADLINE_KEY) or {}
+    counts = dict(head.get("claims") or {})
+    undecided = counts.pop("not_decidable", 0)
+    out = ["## Headline", "",
+           f"[`metrics.json`](metrics.json) (the pipeline's one DVC metrics file, `dvc metrics show` / "
+           f"`dvc exp show`). `claims`: the claims judged on test scores that this run can decide (every model "
+           f"compared above the trivial-predictor floor on the claim's metrics, at least 3 seeds a side): "
+           f"{_counts(counts) or 'none'}; {undecided} not decidable (the scorecard's notes say why). "
+           f"`exact_counts`: Table III's parameter, size, memory and FPS rows, apart: "
+           f"{_counts(head.get('exact_counts') or {}) or 'none'}.", ""]
+    gate = parts.gates.get(MARGIN_DATASET)
+    if MARGIN_KEY in head and gate is not None:
+        margins = [f"{ROW_LABEL.get(m, m)} {gate.margin(m, 'tm').text()}" for m in head[MARGIN_KEY]]
+        out += [f"`{MARGIN_KEY}`: TM margin over the floor on {DATASET_LABEL.get(MARGIN_DATASET, MARGIN_DATASET)} "
+                "(floor TM − TM, positive = better than the trivial predictor; mean over the seeds, 95% interval): "
+                + "; ".join(margins) + ".", ""]
+    out += [f"`{HEADLINE_KEY}`: TM of {ROW_LABEL.get(HEADLINE_MODEL, HEADLINE_MODEL)} (the paper's proposed model "
+            "in the form that produced its Table II), mean over its seeds, per dataset: "
+            + (", ".join(f"{DATASET_LABEL.get(d, d)} {v:.4f}" for d, v in tm.items()) or "none")
+            + ". Every run's scores: `results/<ds>/<model>/seed<k>/metrics.json`.", ""]
+    return out
+
+
+def _floor_sentence(ds: str, gate: Gate, models: Sequence[str]) -> str:
+    """One sentence: the floor's TM and which models are above it on every task they perform."""
+    label = DATASET_LABEL.get(ds, ds)
+    if not gate.has_floor:
+        return f"{label}: no trivial-predictor results, no floor: no model is shown above it."
+    floor = gate.floor
+    src = floor.source("tm") if floor else None
+    tm = f"floor TM {floor.value()['tm']:.3f} ({FLOOR_LABEL.get(src, src)})" if floor and src else "no floor TM"
+    above, below = [], []
+    for m in models:
+        failing = gate.failing(m, [metric_of(t) for t in MODELS[m].tasks])
+        if not failing:
+            above.append(ROW_LABEL.get(m, m))
+        else:
+            below.append(f"{ROW_LABEL.get(m, m)} ({', '.join(f'{METRIC_TASK[x.metric]} {x.reason()}' for x in failing)})")
+    return (f"{label} ({tm}): above the floor on every task it performs: {', '.join(above) or 'none'}"
+            + (f"; not: {'; '.join(below)}" if below else "") + ".")
+
+
+def _floor_section(parts: ReportParts) -> list[str]:
+    """Per dataset, one sentence naming the models above the floor (Table II has the margins)."""
+    if not parts.gates:
+        return []
+    out = ["## Above the floor", "",
+           "A model is above the floor on a task when the 95% interval of its margin over the better trivial "
+           "predictor (fitted on the train split, input-blind; Table II's first rows) lies above 0, with at least 3 "
+           "seeds; no claim is judged, no value bolded, no Δm reported for a model that is not.", ""]
+    for ds, gate in parts.gates.items():
+        models = [m for m in ROW_ORDER if m in parts.results.get(ds, {})]
+        if models or gate.has_floor:
+            out.append(f"- {_floor_sentence(ds, gate, models)}")
+    return out + [""]
 
 
 def _body(markdown: str) -> str:
@@ -262,7 +343,8 @@ def index_markdown(parts: ReportParts) -> str:
     out = ["# Reproduction report: Natan & Miura (2022), compact multi-task perception", ""]
     out += [f"Generated by the `report` stage (`pipeline/report.py`) at params scale `{parts.scale_name or '?'}`. "
             "The paper's published numbers are kept as data in `src/compact_perception/paper_numbers.yaml`.", ""]
-    out += _sources_section(parts) + _seeds_overview(parts.results, parts.scales) + _headline_section(parts.headline)
+    out += _sources_section(parts) + _seeds_overview(parts.results, parts.scales) + _headline_section(parts)
+    out += _floor_section(parts)
     out += _tables_section(parts) + _study_section(parts) + PLOTS_SECTION + _figures_section(parts)
     return "\n".join(out).rstrip() + "\n"
 
@@ -272,18 +354,22 @@ def write_tables(inp: ReportInputs, out_dir: Path, scale_name: str) -> tuple[Rep
     """Table II, the metrics beyond the paper's, the claims scorecard, Table III and the
     paper-vs-reproduced table under ``out_dir``, each built once; returns the parts of the index
     they give (the headline metrics included) and the written paths."""
-    t2 = build_table2(inp.results, inp.frames)
+    t2 = build_table2(inp.results, inp.frames, gates=inp.gates,
+                      training={ds: sc.epochs for ds, sc in inp.scales.items()})
     t3 = None if inp.efficiency is None else build_table3(inp.efficiency)
     claim_ds = [ds for ds in inp.datasets if inp.results.get(ds) or inp.frames.get(ds)]
     claim_rows = build_claims(inp.root, claim_ds, inp.paper, frames=inp.frames, seeds=inp.seeds,
-                              efficiency=inp.efficiency, table3=t3)
+                              efficiency=inp.efficiency, table3=t3, gates=inp.gates)
+    coverage = coverage_text({ds: inp.frames.get(ds, {}) for ds in claim_ds})
     lines = scale_lines(inp.scales, inp.paper, scale_name=scale_name, device=(inp.efficiency or {}).get("device", ""))
-    files = {**table2_files(t2), **extra_files(build_extra_rows(inp.results)), **claims_files(claim_rows),
-             **({} if t3 is None else table3_files(t3, inp.efficiency or {})),
+    floors = {ds: g.floor.results for ds, g in inp.gates.items() if g.floor is not None}
+    files = {**table2_files(t2), **extra_files(build_extra_rows(inp.results, floors)),
+             **claims_files(claim_rows, coverage), **({} if t3 is None else table3_files(t3, inp.efficiency or {})),
              **comparison_files(inp.paper, t2, t3, lines)}
     parts = ReportParts(scale_name, inp.results, inp.scales, lines, files["table2.md"],
                         table3_md=files.get("table3.md"), efficiency=inp.efficiency, claims_md=files["claims.md"],
-                        extra_md=files["extra_metrics.md"], headline=headline_metrics(inp.results, claim_rows))
+                        extra_md=files["extra_metrics.md"],
+                        headline=headline_metrics(inp.results, claim_rows, inp.gates), gates=inp.gates)
     return parts, write_files(out_dir, files)
 
 
@@ -294,7 +380,8 @@ def write_study(inp: ReportInputs, study: Optional[Any], parts: ReportParts, tab
     if study is None:
         log.info("no study params given: the loss-balancing study's report is left out")
         return []
-    parts.study = write_study_report(inp.root, study, tables_dir, figures_dir)
+    parts.study = write_study_report(inp.root, study, tables_dir, figures_dir,
+                                     floors={ds: g.floor for ds, g in inp.gates.items() if g.floor is not None})
     parts.study_figures = {ds: _rel(p, base) for ds, p in parts.study.figures.items()}
     return parts.study.paths
 
@@ -328,7 +415,7 @@ def _dataset_figures(inp: ReportInputs, ds: str, figures_dir: Path, frame: int) 
     """The figures of one dataset this stage draws: both MGN forms' loss weights (Fig. 8), the
     validation curves and the qualitative grid, each where its inputs exist."""
     label = DATASET_LABEL.get(ds, ds)
-    runs = {m: list_runs(inp.root, ds, m, seeds_for(inp.seeds, m)) for m in inp.models}
+    runs = {m: list_runs(inp.root, ds, m, seeds_for(inp.seeds, m, ds)) for m in inp.models}
     out: dict[str, Optional[Path]] = {}
     mgn = {ROW_LABEL.get(m, m): dirs for m in MGN_FORMS if m in runs and (dirs := _run_dirs(runs[m]))}
     if mgn:

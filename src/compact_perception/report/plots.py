@@ -35,7 +35,7 @@ def plot_rows(root: Path, datasets: Sequence[str], models: Sequence[str], seeds:
     """The rows of ``val_tm.csv`` and ``loss_weights.csv`` (runs in dataset, model, seed order,
     then ``extra_runs`` (name, run folder) as given; epochs ascending; tasks in the paper's order)."""
     runs = [(run_name(run), run.run_dir) for ds in datasets for m in models
-            for run in list_runs(root, ds, m, seeds_for(seeds, m))]
+            for run in list_runs(root, ds, m, seeds_for(seeds, m, ds))]
     val_rows: list[list] = []
     weight_rows: list[list] = []
     for name, run_dir in [*runs, *extra_runs]:

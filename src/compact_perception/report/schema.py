@@ -4,9 +4,11 @@ label of its own.
 
 - **rows**: every model in its ``table_order`` (the paper's order, baselines first), with the
   combination of baselines (section V-D, SPEC 6) right after the last model that gives it a
-  task (:attr:`~compact_perception.core.catalog.ModelInfo.combination`);
+  task (:attr:`~compact_perception.core.catalog.ModelInfo.combination`); the trivial predictors
+  of the floor (SPEC 8, :data:`compact_perception.floor.TRIVIAL`) with their labels;
 - **columns** of Table II: the task metrics in task order, then TM and MV (eq. 6-7), with their
-  labels, directions and the statistic their paired bootstrap uses (:mod:`compact_perception.stats`);
+  labels, directions, the statistic their interval uses (:mod:`compact_perception.stats`) and the
+  contrast "row a beats row b" (:func:`beats`);
 - the two **MGN forms** (Algorithm 1 as printed, the authors' code) and the paper's row each
   is compared with (the paper prints one 15L+MGN row);
 - the **loss-weight names** a weighted run logs (``w_<task>``, dvclive and ``summary.json``).
@@ -18,13 +20,15 @@ from typing import Callable
 import numpy as np
 
 from ..core import catalog
+from ..floor import TRIVIAL
 from ..stats import stat_mean, stat_mv, stat_tm
 
 __all__ = [
     "COMBINATION", "COMBINATION_MODELS", "COMBINATION_SOURCE", "COMPACT", "ROW_ORDER", "ROW_LABEL", "DATASET_LABEL",
     "TASK_COLUMNS", "TABLE2_COLUMNS", "PER_FRAME_COLUMNS", "LOWER_IS_BETTER", "COLUMN_MD", "COLUMN_TEX",
     "column_stat", "stat_columns", "MGN_FORMS", "PAPER_MGN", "paper_row", "WEIGHT_KEYS", "WEIGHT_LABEL",
-    "weight_key", "weight_task", "row_ids", "combination_models", "WEIGHT_PREFIX",
+    "weight_key", "weight_task", "row_ids", "combination_models", "WEIGHT_PREFIX", "FLOOR_IDS", "FLOOR_LABEL",
+    "METRIC_TASK", "beats",
 ]
 
 # ----------------------------------------------------------------------------- rows
@@ -52,6 +56,9 @@ COMPACT: tuple[str, ...] = catalog.compact_model_ids()
 ROW_ORDER: tuple[str, ...] = row_ids()
 ROW_LABEL: dict[str, str] = {**{m: catalog.model_label(m) for m in catalog.model_ids()}, COMBINATION: "Combination"}
 DATASET_LABEL: dict[str, str] = {d: catalog.DATASETS[d].label for d in catalog.dataset_ids()}
+#: The trivial predictors of the floor, in the order of their rows (first in every dataset's block).
+FLOOR_IDS: tuple[str, ...] = tuple(TRIVIAL.keys())
+FLOOR_LABEL: dict[str, str] = {t: TRIVIAL[t].label for t in FLOOR_IDS}
 
 # ----------------------------------------------------------------------------- columns
 TASK_COLUMNS: tuple[str, ...] = catalog.metric_keys()
@@ -60,6 +67,8 @@ TABLE2_COLUMNS: tuple[str, ...] = catalog.table2_columns()
 PER_FRAME_COLUMNS: tuple[str, ...] = catalog.per_frame_columns()
 LOWER_IS_BETTER: frozenset[str] = frozenset(c for c in TABLE2_COLUMNS if catalog.lower_is_better(c))
 COLUMN_MD: dict[str, str] = {c: catalog.column_label(c) for c in TABLE2_COLUMNS}
+#: Task metric -> its task's short label (``iou_ls`` -> ``LS``).
+METRIC_TASK: dict[str, str] = {catalog.metric_of(t): catalog.TASKS[t].label for t in catalog.task_ids()}
 
 
 def _tex_label(label: str) -> str:
@@ -80,8 +89,17 @@ def column_stat(col: str) -> Callable[[np.ndarray], np.ndarray]:
 
 
 def stat_columns(col: str) -> list[str]:
-    """The per-frame columns :func:`column_stat` of ``col`` reads: the metric itself, or every task metric."""
+    """The per-frame columns :func:`column_stat` of ``col`` reads: the metric itself, or every task
+    metric (TM and MV): also the metrics on which a row must be above the floor for ``col``."""
     return [col] if col in TASK_COLUMNS else list(TASK_COLUMNS)
+
+
+def beats(col: str) -> Callable[[np.ndarray], np.ndarray]:
+    """The contrast "row 0 beats row 1 on ``col``" of two rows' values (``v[..., 0]``, ``v[..., 1]``),
+    positive when it does: ``v1 - v0`` where lower is better, ``v0 - v1`` otherwise."""
+    if col in LOWER_IS_BETTER:
+        return lambda v: v[..., 1] - v[..., 0]
+    return lambda v: v[..., 0] - v[..., 1]
 
 
 # ----------------------------------------------------------------------------- the two MGN forms

@@ -16,6 +16,11 @@ of those means (eq. 6-7, :func:`.collect.with_derived`), Δm against the single-
 epochs_run``). Per (dataset, method): mean and sample sd (n - 1) over its seeds
 (:func:`.collect.aggregate_cells`). Missing runs are logged and left out; a malformed file raises
 :class:`~.collect.ReportInputError` naming it, like every other report input.
+
+Δm is reported only for a method above the trivial-predictor floor on every task (:mod:`.gate`:
+the 95% interval of its margin above 0 from its runs' per-frame scores, at least three seeds);
+otherwise its Δm cell says ``below floor`` (a difference between networks that learned nothing
+from their inputs measures nothing). A single-task arm is checked on its own task.
 """
 from __future__ import annotations
 
@@ -34,11 +39,13 @@ from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.ticker import MaxNLocator  # noqa: E402
 
 from ..core import catalog, io  # noqa: E402
-from ..core.layout import study_paths  # noqa: E402
+from ..core.layout import RunPaths, study_paths  # noqa: E402
 from ..weighting import weighting_class  # noqa: E402
-from .collect import Cell, aggregate_cells, list_runs, read_metrics, read_summary, with_derived  # noqa: E402
+from .collect import (Cell, aggregate_cells, list_runs, load_floor_frames, load_floor_results,  # noqa: E402
+                      read_metrics, read_per_frame, read_summary, with_derived)
 from .figures import _mean_curve, read_weight_curves, save_figure  # noqa: E402
-from .schema import DATASET_LABEL  # noqa: E402
+from .gate import DatasetFloor, Gate, Margin  # noqa: E402
+from .schema import DATASET_LABEL, METRIC_TASK  # noqa: E402
 
 log = logging.getLogger(__name__)
 
@@ -62,6 +69,7 @@ SCORE_MD: dict[str, str] = {
 DECIMALS: dict[str, int] = {"dm": 1, "sec_per_epoch": 2}
 NO_SD = "—"
 NOT_AVAILABLE = "n/a"
+BELOW_FLOOR = "below floor"
 MD_NAME, CSV_NAME = "weighting.md", "weighting.csv"
 
 
@@ -155,19 +163,16 @@ class SeedResult:
     scores: Mapping[str, float]
     sec_per_epoch: Optional[float]
     run_dir: Path
+    eval_dir: Optional[Path] = None
 
 
-def _method_runs(root: Path, ds: str, method: StudyMethod, seeds: Sequence[int]
-                 ) -> list[tuple[Optional[int], Path, Path]]:
-    """(seed, run_dir, metrics_path) of every run of ``method`` on ``ds`` with any output."""
+def _method_runs(root: Path, ds: str, method: StudyMethod, seeds: Sequence[int]) -> list[RunPaths]:
+    """The paths (:class:`~compact_perception.core.layout.RunPaths`) of every run of ``method`` on
+    ``ds`` with any output."""
     if method.kind == "paper":
-        return [(r.seed, r.run_dir, r.metrics_path) for r in list_runs(root, ds, method.id, seeds)]
-    out = []
-    for k in seeds:
-        p = study_paths(method.id, k, ds, root)
-        if p.run_dir.is_dir() or p.metrics_path.is_file():
-            out.append((k, p.run_dir, p.metrics_path))
-    return out
+        return list_runs(root, ds, method.id, seeds)
+    paths = [study_paths(method.id, k, ds, root) for k in seeds]
+    return [p for p in paths if p.run_dir.is_dir() or p.metrics_path.is_file()]
 
 
 def study_run_dirs(root: Path, params: Any) -> list[tuple[str, Path]]:
@@ -203,13 +208,13 @@ def collect_seed_results(root: Path, spec: StudySpec, methods: Optional[Sequence
         out[ds] = {}
         for m in methods:
             found, missing = [], []
-            for seed, run_dir, metrics_path in _method_runs(root, ds, m, spec.seeds):
-                if not metrics_path.is_file():
-                    missing.append(seed)
+            for p in _method_runs(root, ds, m, spec.seeds):
+                if not p.metrics_path.is_file():
+                    missing.append(p.seed)
                     continue
-                res = with_derived(read_metrics(metrics_path, ds, m.id), f"{ds}/{m.id}/seed{seed}")
+                res = with_derived(read_metrics(p.metrics_path, ds, m.id), f"{ds}/{m.id}/seed{p.seed}")
                 scores = {k: c.mean for k, c in res.scores.items() if k in SCORES}
-                found.append(SeedResult(ds, m.id, seed, scores, _sec_per_epoch(run_dir), run_dir))
+                found.append(SeedResult(ds, m.id, p.seed, scores, _sec_per_epoch(p.run_dir), p.run_dir, p.eval_dir))
             absent = [k for k in spec.seeds if k not in {r.seed for r in found} and k not in missing]
             if missing or (found and absent):
                 log.warning("study %s/%s: no metrics for seed(s) %s; left out", ds, m.id, sorted(missing + absent))
@@ -238,25 +243,67 @@ def reference_means(results: Mapping[str, Sequence[SeedResult]], methods: Sequen
     return ref, notes
 
 
+#: (dataset, method id) -> the margins over the floor on which the method does not pass the gate.
+Failing = Mapping[tuple[str, str], Sequence[Margin]]
+
+
+def _seed_frames(runs: Sequence[SeedResult]) -> list[pd.DataFrame]:
+    """The per-frame scores of the runs that have them (``attrs["seed"]`` set)."""
+    out = []
+    for r in runs:
+        path = r.eval_dir / "per_frame.csv" if r.eval_dir is not None else None
+        if path is not None and path.is_file():
+            df = read_per_frame(path)
+            df.attrs["seed"] = r.seed
+            out.append(df)
+    return out
+
+
+def gate_methods(results: Mapping[str, Mapping[str, Sequence[SeedResult]]], methods: Sequence[StudyMethod],
+                 floors: Mapping[str, DatasetFloor]) -> dict[tuple[str, str], list[Margin]]:
+    """Per (dataset, method with runs): the task metrics on which it is not above the floor
+    (:mod:`.gate`; a single-task arm: its own task only; no floor or no per-frame scores: fails)."""
+    out: dict[tuple[str, str], list[Margin]] = {}
+    for ds, per_method in results.items():
+        gate = Gate(floors.get(ds))
+        for m in methods:
+            runs = per_method.get(m.id)
+            if runs:
+                frames = _seed_frames(runs)
+                metrics = [catalog.metric_of(m.task)] if m.kind == "single" and m.task else catalog.metric_keys()
+                out[(ds, m.id)] = [g for g in (gate.margin_of(frames, c) for c in metrics) if not g.above]
+    return out
+
+
 @dataclass
 class StudyRow:
     """One (dataset, method): every score of :data:`SCORES` as a :class:`~.collect.Cell` over
-    its seeds (absent when no run has it; Δm absent for a single-task arm)."""
+    its seeds (absent when no run has it; Δm absent for a single-task arm and for a method not
+    above the floor); ``below``: the margins on which it is not above the floor."""
 
     dataset: str
     method: StudyMethod
     seeds: tuple[Optional[int], ...]
     cells: dict[str, Cell]
+    below: tuple[Margin, ...] = ()
 
     @property
     def n_seeds(self) -> int:
         return len(self.seeds)
 
+    @property
+    def above_floor(self) -> str:
+        """``yes``, or ``no: LS (below), SS (not shown above: 2 seeds), ...``."""
+        if not self.below:
+            return "yes"
+        return "no: " + ", ".join(f"{METRIC_TASK.get(g.metric, g.metric)} ({g.reason()})" for g in self.below)
+
 
 def build_rows(results: Mapping[str, Mapping[str, Sequence[SeedResult]]], methods: Sequence[StudyMethod],
-               references: Mapping[str, Mapping[str, float]]) -> list[StudyRow]:
+               references: Mapping[str, Mapping[str, float]], failing: Optional[Failing] = None) -> list[StudyRow]:
     """Rows per dataset in ``methods`` order (methods without runs left out); Δm per seed
-    against ``references[ds]`` (:func:`delta_m`; NaN without a full reference), then over seeds."""
+    against ``references[ds]`` (:func:`delta_m`; NaN without a full reference), then over seeds,
+    only for a method that passes the gate (``failing``: :func:`gate_methods`; ``None``: no gate)."""
     rows = []
     for ds, per_method in results.items():
         ref = references.get(ds, {})
@@ -264,17 +311,18 @@ def build_rows(results: Mapping[str, Mapping[str, Sequence[SeedResult]]], method
             runs = per_method.get(m.id)
             if not runs:
                 continue
+            below = tuple((failing or {}).get((ds, m.id), ()))
             values: dict[str, list[float]] = {}
             for r in runs:
                 for k in RUN_SCORES:
                     if k in r.scores:
                         values.setdefault(k, []).append(r.scores[k])
-                if m.kind != "single":
+                if m.kind != "single" and not below:
                     values.setdefault("dm", []).append(delta_m(r.scores, ref))
                 if r.sec_per_epoch is not None:
                     values.setdefault("sec_per_epoch", []).append(r.sec_per_epoch)
             cells = {k: aggregate_cells([Cell(v) for v in vals]) for k, vals in values.items()}
-            rows.append(StudyRow(ds, m, tuple(r.seed for r in runs), cells))
+            rows.append(StudyRow(ds, m, tuple(r.seed for r in runs), cells, below))
     return rows
 
 
@@ -287,7 +335,8 @@ def _csv_value(cell: Optional[Cell], std: bool) -> float:
 
 
 def weighting_csv(rows: Sequence[StudyRow]) -> str:
-    """``weighting.csv``: one line per (dataset, method); empty cells = not available (sd: one seed)."""
+    """``weighting.csv``: one line per (dataset, method); empty cells = not available (sd: one seed;
+    Δm: a reference, or a method below the floor); ``above_floor``: the gate (:attr:`StudyRow.above_floor`)."""
     records = []
     for r in rows:
         rec: dict[str, Any] = {"dataset": r.dataset, "method": r.method.id, "label": r.method.label,
@@ -295,8 +344,10 @@ def weighting_csv(rows: Sequence[StudyRow]) -> str:
         for k in SCORES:
             rec[f"{k}_mean"] = _csv_value(r.cells.get(k), False)
             rec[f"{k}_sd"] = _csv_value(r.cells.get(k), True)
+        rec["above_floor"] = r.above_floor
         records.append(rec)
-    columns = ["dataset", "method", "label", "n_seeds"] + [f"{k}_{s}" for k in SCORES for s in ("mean", "sd")]
+    columns = (["dataset", "method", "label", "n_seeds"] + [f"{k}_{s}" for k in SCORES for s in ("mean", "sd")]
+               + ["above_floor"])
     return pd.DataFrame(records, columns=columns).to_csv(index=False, float_format="%.10g", na_rep="")
 
 
@@ -306,6 +357,15 @@ def _fmt(cell: Optional[Cell], key: str) -> str:
     d = DECIMALS.get(key, 3)
     sd = NO_SD if cell.std is None else (f"{cell.std:.{d}f}" if math.isfinite(cell.std) else NOT_AVAILABLE)
     return f"{round(cell.mean, d) + 0.0:.{d}f} ± {sd}"     # + 0.0: no "-0.0"
+
+
+def _cell(r: StudyRow, key: str) -> str:
+    """A score cell; Δm: ``—`` for a reference, ``below floor`` for a method not above the floor."""
+    if key == "dm" and r.method.kind == "single":
+        return NO_SD
+    if key == "dm" and r.below:
+        return BELOW_FLOOR
+    return _fmt(r.cells.get(key), key)
 
 
 def weighting_markdown(rows: Sequence[StudyRow], spec: StudySpec, references: Mapping[str, Mapping[str, float]],
@@ -328,7 +388,11 @@ def weighting_markdown(rows: Sequence[StudyRow], spec: StudySpec, references: Ma
            "(eq. 7) are of each run's four test-set means.",
            "- **s / epoch**: `train_seconds / epochs_run` of each run's `summary.json`, mean ± sd over seeds "
            "(wall-clock on the machine that trained it).",
-           "- No value is marked best: with this few seeds, differences within ±2 sd are not separated.", ""]
+           "- No value is marked best: with this few seeds, differences within ±2 sd are not separated.",
+           f"- **Floor**: Δm is reported only for a method above the trivial-predictor floor on every task (the 95% "
+           f"interval of its margin over the floor above 0, with at least 3 seeds: Table II's rule); the others show "
+           f"`{BELOW_FLOOR}`, and the line under the table names the tasks. A single-task reference is checked on "
+           "its own task.", ""]
     cols = list(SCORES)
     for ds in spec.datasets:
         label = dataset_label.get(ds, ds)
@@ -344,9 +408,12 @@ def weighting_markdown(rows: Sequence[StudyRow], spec: StudySpec, references: Ma
             out += ["| Method | Seeds | " + " | ".join(SCORE_MD[k] for k in cols) + " |",
                     "|---|---|" + "---|" * len(cols)]
             for r in ds_rows:
-                cells = [NO_SD if (k == "dm" and r.method.kind == "single") else _fmt(r.cells.get(k), k) for k in cols]
+                cells = [_cell(r, k) for k in cols]
                 out.append(f"| {r.method.label} | {r.n_seeds} | " + " | ".join(cells) + " |")
             out.append("")
+            gated = [f"{r.method.label} ({r.above_floor[4:]})" for r in ds_rows if r.below]
+            if gated:
+                out += ["Not above the floor on every task (Δm not reported): " + "; ".join(gated) + ".", ""]
         out += [f"- {n}" for n in notes.get(ds, ())]
         if notes.get(ds):
             out.append("")
@@ -428,13 +495,19 @@ class StudyOutputs:
         return [self.markdown, self.csv, *self.figures.values()]
 
 
-def write_study_report(root: Path, params: Any, out_tables: Path, out_figures: Path) -> StudyOutputs:
+def write_study_report(root: Path, params: Any, out_tables: Path, out_figures: Path,
+                       floors: Optional[Mapping[str, DatasetFloor]] = None) -> StudyOutputs:
     """Write ``<out_tables>/weighting.{md,csv}`` and ``<out_figures>/loss_weights_study_<ds>.png``
     from the study's and the paper forms' runs under ``root``. ``params``: validated params (or a
-    :class:`StudySpec`). Missing runs are logged and left out, never an error."""
+    :class:`StudySpec`); ``floors``: each dataset's trivial predictors (read under ``root`` where
+    not given). Missing runs are logged and left out, never an error."""
     spec = StudySpec.from_params(params)
     methods = study_methods(spec)
     results = collect_seed_results(Path(root), spec, methods)
+    floors = dict(floors or {})
+    for ds in spec.datasets:
+        if ds not in floors:
+            floors[ds] = DatasetFloor(ds, load_floor_results(Path(root), ds), load_floor_frames(Path(root), ds))
     references: dict[str, dict[str, float]] = {}
     notes: dict[str, list[str]] = {}
     for ds in spec.datasets:
@@ -447,7 +520,7 @@ def write_study_report(root: Path, params: Any, out_tables: Path, out_figures: P
         absent = [m.label for m in methods if m.id not in results.get(ds, {})]
         if absent:
             notes[ds].append("No runs yet: " + ", ".join(absent) + ".")
-    rows = build_rows(results, methods, references)
+    rows = build_rows(results, methods, references, gate_methods(results, methods, floors))
     text = weighting_markdown(rows, spec, references, notes, DATASET_LABEL)
     md_path, csv_path = Path(out_tables) / MD_NAME, Path(out_tables) / CSV_NAME
     io.write_text(md_path, text)

@@ -5,13 +5,14 @@ headed by sentences stating this run's scale beside the paper's (:func:`scale_li
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Iterator, Mapping, Optional, Sequence, TypeVar
+from typing import Iterator, Mapping, Optional, Sequence, TypeVar
 
 from ..collect import Cell, DatasetScale
 from ..paper import PaperCell, PaperNumbers
 from ..schema import (COLUMN_MD, COLUMN_TEX, COMBINATION, COMBINATION_SOURCE, DATASET_LABEL, ROW_LABEL, TABLE2_COLUMNS,
                       TASK_COLUMNS, paper_row)
-from .formats import NOT_APPLICABLE, csv_text, fmt_num, fmt_seeds, fmt_var, md_table, table_files, tex_escape
+from .formats import (NOT_APPLICABLE, csv_text, fmt_num, fmt_seeds, fmt_var, md_table, table_files, tex_escape,
+                      training_text)
 from .table2 import MGN_NOTE, Table2Row
 from .table3 import Table3Row
 
@@ -101,11 +102,6 @@ def compare(paper: PaperNumbers, table2: dict[str, list[Table2Row]],
 
 
 # ----------------------------------------------------------------------------- scale
-def _join(values: Sequence[Any]) -> str:
-    vals = ["?" if v is None else str(v) for v in values]
-    return vals[0] if len(set(vals)) == 1 else "/".join(vals)
-
-
 def scale_lines(scales: dict[str, DatasetScale], paper: PaperNumbers, *, scale_name: str = "",
                 device: str = "") -> list[str]:
     """Sentences stating this run's scale beside the paper's, per dataset: frames, test frames
@@ -120,9 +116,7 @@ def scale_lines(scales: dict[str, DatasetScale], paper: PaperNumbers, *, scale_n
         counts = "/".join(str(sc.counts.get(k, "?")) for k in SPLITS) if sc.counts else "unknown"
         pfs = t1.get("frames_per_split", {}).get(ds)
         pcounts = "/".join(str(pfs[k]) for k in SPLITS) if pfs else "?"
-        ep = "; ".join(f"{ROW_LABEL.get(m, m)} {_join([e.get('epochs_run') for e in es])} "
-                       f"(best {_join([e.get('best_epoch') for e in es])})"
-                       for m, es in sc.epochs.items()) or "no runs"
+        ep = "; ".join(f"{ROW_LABEL.get(m, m)} {training_text(es)}" for m, es in sc.epochs.items()) or "no runs"
         n_test = "/".join(map(str, sc.n_test_frames)) or "?"
         seeds: dict[int, list[str]] = {}
         for m, ks in sc.seeds.items():
@@ -131,7 +125,7 @@ def scale_lines(scales: dict[str, DatasetScale], paper: PaperNumbers, *, scale_n
         lines.append(f"{DATASET_LABEL.get(ds, ds)}: source {sc.source or 'unknown'}; frames train/val/test "
                      f"{counts} (paper {pcounts}); test frames scored per run {n_test}; seeds (trainings) "
                      f"{seed_txt}; resolution {sc.resolution or '?'} px (paper {t1.get('resolution', 128)}); "
-                     f"epochs run (best epoch), per seed: {ep}.")
+                     f"epochs run (best epoch), per seed, and why training stopped: {ep}.")
     return lines
 
 

@@ -1,10 +1,12 @@
 """What every report table shares: number formats (the paper's 3 decimals, its ``<0.001``
-variances, ``mean ± sd`` over the seeds), the cell marks, and the Markdown, LaTeX and CSV writers."""
+variances, ``mean ± sd`` over the seeds), how deep a row trained, the cell marks, and the
+Markdown, LaTeX and CSV writers."""
 from __future__ import annotations
 
 import csv
 import io as _io
 from pathlib import Path
+from collections import Counter
 from typing import Any, Iterable, Mapping, Optional, Sequence
 
 from ...core import io
@@ -14,6 +16,10 @@ DECIMALS = 3
 NOT_APPLICABLE = "-"
 NOT_AVAILABLE = "n/a"
 INCONCLUSIVE_MARK = "†"
+#: Cell marks of the learnedness gate (:mod:`..gate`), Markdown and LaTeX: a value no better than
+#: the floor's, and a better value whose margin's interval is not above 0 (or too few seeds).
+BELOW_FLOOR_MARK, UNSHOWN_MARK = "↓", "°"
+BELOW_FLOOR_TEX, UNSHOWN_TEX = "$^{\\downarrow}$", "$^{\\circ}$"
 
 
 # ----------------------------------------------------------------------------- numbers
@@ -38,6 +44,26 @@ def fmt_seeds(cell: Optional[Cell], latex: bool = False, decimals: int = DECIMAL
     if cell.std is not None:
         return text + (" $\\pm$ " if latex else " ± ") + fmt_num(cell.std, decimals)
     return text + f" (n={cell.n_seeds})"
+
+
+def join_values(values: Sequence[Any]) -> str:
+    """One value if all are equal, else all of them joined by ``/`` (``?`` for a missing one)."""
+    vals = ["?" if v is None else str(v) for v in values]
+    return vals[0] if len(set(vals)) == 1 else "/".join(vals)
+
+
+def training_text(facts: Sequence[Mapping[str, Any]]) -> str:
+    """How deep a model's runs trained, from their ``summary.json`` facts (one per seed, in seed
+    order): ``3 (best 2), max_epochs`` or ``12/15/9 (best 8/11/5), max_epochs x1, plateau x2``
+    (why training stopped: the one reason of every run, or each reason with its count)."""
+    if not facts:
+        return ""
+    text = (f"{join_values([f.get('epochs_run') for f in facts])} "
+            f"(best {join_values([f.get('best_epoch') for f in facts])})")
+    stops = Counter(str(f["stop_reason"]) for f in facts if f.get("stop_reason"))
+    if len(stops) == 1 and sum(stops.values()) == len(facts):
+        return f"{text}, {next(iter(stops))}"
+    return text + "".join(f", {s} x{n}" for s, n in sorted(stops.items()))
 
 
 def bold(text: str, latex: bool) -> str:

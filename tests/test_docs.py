@@ -1,0 +1,111 @@
+"""Figures that README.md and docs/*.md quote from results equal the results they quote (issue 24:
+stale figures).
+
+A quoted result is written with its source right after the number, in an HTML comment Markdown
+does not render: ``0.125<!-- quote e12ba38:results/C/gradnorm_segnet/seed0/metrics.json#iou_ss.mean -->``
+(a commit's file, read with ``git show``) or ``26<!-- quote reports/metrics.json#claims.reproduced -->``
+(the committed file in the working tree). The number must equal the value at the key path
+(``.``-separated) to the number's printed decimals. The scorecard's verdict counts may only be
+quoted that way: a current figure is a pointer to the generated file or a checked quote.
+"""
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+from pathlib import Path
+from typing import Any, Optional
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+DOCS: tuple[Path, ...] = (ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")))
+QUOTE = re.compile(r"(?P<num>[-+]?\d+(?:\.\d+)?)<!-- quote (?:(?P<commit>[0-9a-f]{7,40}):)?(?P<path>[^#\s]+)"
+                   r"#(?P<key>\S+) -->")
+#: A verdict count in prose: the number, an optional quote marker, the verdict.
+COUNT = re.compile(r"\b(?P<num>\d+)(?P<marker><!-- quote [^>]*-->)?\s+(?:reproduced|contradicted|inconclusive|"
+                   r"not decidable)\b")
+
+
+def _git_show(commit: str, path: str) -> Optional[str]:
+    """The file at ``commit`` (``None`` where git or the commit is not available: a shallow clone)."""
+    try:
+        out = subprocess.run(["git", "-C", str(ROOT), "show", f"{commit}:{path}"], capture_output=True, text=True,
+                             timeout=60)
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    return out.stdout if out.returncode == 0 else None
+
+
+def _lookup(text: str, key: str) -> Any:
+    value: Any = json.loads(text)
+    for part in key.split("."):
+        value = value[part]
+    return value
+
+
+def check_quotes(text: str, root: Path = ROOT) -> tuple[list[str], int]:
+    """Every quote of ``text`` against its source: the mismatches (one line each) and the number
+    of quotes checked (quotes of an unavailable commit are skipped)."""
+    problems, checked = [], 0
+    for m in QUOTE.finditer(text):
+        where = f"{m['commit'] + ':' if m['commit'] else ''}{m['path']}#{m['key']}"
+        source = _git_show(m["commit"], m["path"]) if m["commit"] else (
+            (root / m["path"]).read_text() if (root / m["path"]).is_file() else "")
+        if source is None:
+            continue
+        try:
+            value = float(_lookup(source, m["key"]))
+        except (ValueError, KeyError, TypeError):
+            problems.append(f"{m['num']}: {where}: no number there")
+            continue
+        decimals = len(m["num"].split(".")[1]) if "." in m["num"] else 0
+        if abs(value - float(m["num"])) > 0.5 * 10 ** -decimals + 1e-12:
+            problems.append(f"{m['num']}: {where} is {value!r}")
+        checked += 1
+    return problems, checked
+
+
+def unmarked_counts(text: str) -> list[str]:
+    """Verdict counts written without their source."""
+    return [m.group(0) for m in COUNT.finditer(text) if not m["marker"]]
+
+
+@pytest.mark.parametrize("doc", DOCS, ids=[p.name for p in DOCS])
+def test_every_quoted_result_equals_its_source(doc: Path) -> None:
+    problems, _ = check_quotes(doc.read_text())
+    assert not problems, f"{doc.name}: quoted results that differ from their source: {problems}"
+
+
+@pytest.mark.parametrize("doc", DOCS, ids=[p.name for p in DOCS])
+def test_verdict_counts_are_quoted_with_their_source(doc: Path) -> None:
+    assert not unmarked_counts(doc.read_text()), f"{doc.name}: verdict counts without a source: " \
+                                                  f"{unmarked_counts(doc.read_text())}"
+
+
+def test_the_docs_quote_the_results_they_name() -> None:
+    """The docs that quote results do so with sources (the quotes this test checks exist)."""
+    if _git_show("e12ba38", "results/C/gradnorm_segnet/seed0/metrics.json") is None:
+        pytest.skip("no git history here (shallow clone): the quotes of earlier commits cannot be read")
+    counts = {doc.name: check_quotes(doc.read_text())[1] for doc in DOCS}
+    assert counts["README.md"] >= 2 and counts["gradnorm_segnet.md"] >= 10
+    readme = (ROOT / "README.md").read_text()
+    assert "0.104\n  here" not in readme and "26 reproduced" not in readme
+
+
+def test_the_checker_fails_on_a_wrong_quote(tmp_path: Path) -> None:
+    (tmp_path / "reports").mkdir()
+    (tmp_path / "reports/metrics.json").write_text(json.dumps({"claims": {"reproduced": 7, "contradicted": 2},
+                                                               "tm": {"A": 2.8123}}))
+    right = ("7<!-- quote reports/metrics.json#claims.reproduced --> reproduced, "
+             "2<!-- quote reports/metrics.json#claims.contradicted --> contradicted; TM "
+             "2.81<!-- quote reports/metrics.json#tm.A -->")
+    assert check_quotes(right, tmp_path) == ([], 3) and unmarked_counts(right) == []
+    wrong = right.replace("7<!--", "26<!--").replace("2.81<!--", "2.82<!--")
+    problems, checked = check_quotes(wrong, tmp_path)
+    assert checked == 3 and problems == ["26: reports/metrics.json#claims.reproduced is 7.0",
+                                         "2.82: reports/metrics.json#tm.A is 2.8123"]
+    assert check_quotes("1<!-- quote reports/metrics.json#claims.missing -->", tmp_path)[0] == \
+        ["1: reports/metrics.json#claims.missing: no number there"]
+    assert unmarked_counts("the scorecard: 26 reproduced, 24 contradicted, 44\ninconclusive") == \
+        ["26 reproduced", "24 contradicted", "44\ninconclusive"]
