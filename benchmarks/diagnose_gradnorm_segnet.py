@@ -97,8 +97,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cache", default=None, help="cache of the dataset (default data/cache/<dataset>)")
     ap.add_argument("--out", default="/tmp/gns/diag", help="run folders (outside the repository)")
     ap.add_argument("--epochs", type=int, default=None,
-                    help="epochs per arm (default: train.models.gradnorm_segnet.max_epochs at params' scale)")
-    ap.add_argument("--seed", type=int, default=0, help="training seed (one of params.seeds' kind)")
+                    help="epochs per arm (default: the gradnorm_segnet recipe's cap at params' scale)")
+    ap.add_argument("--seed", type=int, default=0, help="training seed")
     ap.add_argument("--arms", nargs="+", default=["gradnorm", "static"], choices=["gradnorm", "static"])
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--json", default=None, help="also write every figure to this JSON file")
@@ -110,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
     meta = json.loads((cache / "meta.json").read_text())
     n_cls = len(meta["seg_classes"])
     base = params.train.models[MODEL]
-    epochs = args.epochs or (base.max_epochs or params.train.max_epochs).at(params.scale)
+    epochs = args.epochs or params.max_epochs_of(base, args.dataset)
     report: dict = {"dataset": args.dataset, "epochs": epochs, "n_classes": n_cls, "seed": args.seed}
 
     log.info("scoring check on the ground truth (no model)")
@@ -125,13 +125,14 @@ def main(argv: list[str] | None = None) -> int:
 
     def recording(self, step, n_steps, losses, model):  # the w of every step, after its update
         orig(self, step, n_steps, losses, model)
-        steps.append({"w_" + t: float(w) for t, w in zip(self.tasks, self.w)}
+        new = self._pending if self._pending is not None else self.w   # taken after the step's backward
+        steps.append({"w_" + t: float(w) for t, w in zip(self.tasks, new)}
                      | {"loss_" + t: float(losses[t].detach()) for t in self.tasks})
 
     GradNormWeighting.before_backward = recording
     try:
         for arm in args.arms:
-            upd: dict = {"max_epochs": Scaled[int](default=epochs, paper=epochs)}
+            upd: dict = {"max_epochs": Scaled[int](default=epochs, full=epochs, paper=epochs)}
             if arm == "static":
                 upd |= {"weighting": "static", "gradnorm": None}
             recipe = base.model_copy(update=upd)

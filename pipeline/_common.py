@@ -21,3 +21,10 @@ def start(params_path: str | Path = "params.yaml") -> Params:
         return audited(load_params(params_path))
     except ParamsError as err:
         sys.exit(f"error: {err}")
+
+
+def worker_params(params_path: str | Path) -> Params:
+    """In a stage's worker process (:mod:`compact_perception.training.parallel`): the stage's
+    logging and its validated params, read again from the same file (audited like the stage's)."""
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    return audited(load_params(params_path))

@@ -1,41 +1,59 @@
-"""DVC stage evaluate@<dataset>-<model>: score every seed's best checkpoint on the test split
-(runs/<ds>/<model>/seed<k> for k in params.yaml's ``seeds`` of a compact model, ``baseline_seeds``
-of a baseline; one process for all seeds).
+"""DVC stage evaluate@<dataset>: the floor and every run of one dataset on its test split.
 
-    python -m pipeline.evaluate --dataset A --model compact_15l_mgn
+First the trivial predictors (compact_perception.floor, SPEC 8: fitted on the train split) into
+results/<ds>/floor_*/; then every run of compact_perception.plan (each model at its seeds, the
+study's arms) from its best checkpoint, frame by frame, in ``train.parallel_runs`` worker
+processes, into results/<ds>/<model>/seed<k>/metrics.json (with its margin over the floor) and
+data/eval/<ds>/<model>/seed<k>/.
+
+    python -m pipeline.evaluate --dataset A
 """
 from __future__ import annotations
 
 import argparse
 import sys
 from pathlib import Path
+from typing import Mapping, Optional
 
-from compact_perception.core.cache import CacheError
-from compact_perception.core.catalog import MODELS, dataset_ids, model_ids
-from compact_perception.evaluate import evaluate_run
-from compact_perception.core.layout import run_paths
+from compact_perception.core.cache import CacheError, read_split
+from compact_perception.core.catalog import dataset_ids
 from compact_perception.core.errors import RunError
+from compact_perception.evaluate import best_checkpoint, evaluate_floors, evaluate_run
+from compact_perception.plan import dataset_runs
+from compact_perception.training.parallel import Job, JobError, run_jobs
 
-from ._common import start
+from ._common import start, worker_params
+
+
+def evaluate_one(params_path: str, dataset: str, model: str, run_dir: str, metrics_path: str, eval_dir: str,
+                 arm: Optional[str], floor: Mapping[str, float]) -> dict:
+    """Score one run's best checkpoint (in a worker process); the study's runs save no predictions."""
+    params = worker_params(params_path)
+    return evaluate_run(dataset, model, Path("data/cache") / dataset, Path(run_dir), Path(metrics_path),
+                        Path(eval_dir), device_pref=params.train.device,
+                        save_predictions=0 if arm else params.evaluate.save_predictions,
+                        num_threads=params.train.num_threads, floor=floor)
 
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--dataset", required=True, choices=dataset_ids())
-    ap.add_argument("--model", required=True, choices=model_ids())
     ap.add_argument("--params", default="params.yaml")
     args = ap.parse_args(argv)
     params = start(args.params)
-    try:  # bad input (a truncated cache, no checkpoint): one line naming the file, exit 1
-        for seed in params.seeds_of(MODELS[args.model].group):
-            paths = run_paths(args.dataset, args.model, seed)
-            evaluate_run(
-                args.dataset, args.model, Path("data/cache") / args.dataset, paths.run_dir,
-                paths.metrics_path, paths.eval_dir,
-                device_pref=params.train.device, save_predictions=params.evaluate.save_predictions,
-                num_threads=params.train.num_threads,
-            )
-    except (CacheError, RunError, FileNotFoundError) as err:
+    cache = Path("data/cache") / args.dataset
+    try:  # bad input (a truncated cache, no checkpoint): one line naming the file, exit 1, before any write
+        runs = dataset_runs(params, args.dataset)
+        for split in ("train", "test"):
+            read_split(cache, split)
+        for r in runs:
+            best_checkpoint(r.dataset, r.model, r.paths.run_dir)
+        floor = evaluate_floors(args.dataset, cache, ".",
+                                save_predictions=params.evaluate.save_predictions, num_threads=params.train.num_threads)
+        jobs = [Job(r.name, (args.params, r.dataset, r.model, str(r.paths.run_dir), str(r.paths.metrics_path),
+                             str(r.paths.eval_dir), r.arm, floor)) for r in runs]
+        run_jobs(evaluate_one, jobs, params.train.parallel_runs, desc=f"evaluate {args.dataset}")
+    except (JobError, CacheError, RunError, FileNotFoundError) as err:
         sys.exit(f"error: {err}")
 
 

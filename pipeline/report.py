@@ -3,8 +3,8 @@ from every run's outputs.
 
     python -m pipeline.report [--params params.yaml] [--out reports]
 
-Reads, for every run of the seeds params.yaml lists (``seeds`` for the compact models,
-``baseline_seeds`` for the baselines; seed folders of other seeds are ignored):
+Reads, for every run of the seeds params.yaml lists (``datasets.<ds>.training.seeds`` for the
+compact models, ``baseline_seeds`` for the baselines; seed folders of other seeds are ignored):
 results/<ds>/<model>/seed<k>/metrics.json, data/eval/<ds>/<model>/seed<k>/{per_frame.csv, *.npz},
 runs/<ds>/<model>/seed<k>/{summary.json, live/plots/metrics/*.tsv}; and
 results/benchmark/efficiency.json, data/cache/<ds>/meta.json. Writes reports/index.md,
@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any
 
 from compact_perception.core.catalog import MODELS, dataset_ids, model_ids
 from compact_perception.report.collect import ReportInputError
@@ -25,17 +25,11 @@ from compact_perception.report.index import build_reports
 from ._common import start
 
 
-def seed_lists(params: Any) -> Optional[dict[str, list[int]]]:
-    """The training seeds of every model: params ``seeds`` for the compact models,
-    ``baseline_seeds`` for the baselines (``catalog.ModelInfo.group``; the same rule as
-    ``Params.seeds_of``, read here field by field so the params audit records both keys);
-    ``None`` (every seed folder found) when params carry no ``seeds``."""
-    seeds = getattr(params, "seeds", None)
-    if seeds is None:
-        return None
-    baseline = getattr(params, "baseline_seeds", None)
-    baseline = seeds if baseline is None else baseline
-    return {m: [int(k) for k in (seeds if MODELS[m].group == "compact" else baseline)] for m in model_ids()}
+def seed_lists(params: Any) -> dict[str, dict[str, list[int]]]:
+    """The training seeds of every model on every dataset (``Params.seeds_of``: the dataset's
+    ``training.seeds`` for a compact model, ``baseline_seeds`` for a baseline)."""
+    return {ds: {m: [int(k) for k in params.seeds_of(MODELS[m].group, ds)] for m in model_ids()}
+            for ds in dataset_ids()}
 
 
 def main(argv: list[str] | None = None) -> None:

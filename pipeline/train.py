@@ -1,47 +1,87 @@
-"""DVC stage train@<dataset>-<model>-<seed>: train one model on one dataset's cache with one of
-params.yaml's ``seeds``, into runs/<dataset>/<model>/seed<seed>.
+"""DVC stage train@<dataset>: every run of one dataset (compact_perception.plan: each model of
+``model_ids`` at its seeds, and the study's arms where the dataset is a study dataset), trained
+side by side in ``train.parallel_runs`` worker processes into runs/<dataset>/. A run already
+complete for the same code, params and data is skipped; a killed one resumes.
 
-    python -m pipeline.train --dataset A --model compact_15l_mgn --seed 0
+    python -m pipeline.train --dataset A                                  # the stage
+    python -m pipeline.train --dataset A --model compact_15l_mgn --seed 0  # one run
+    python -m pipeline.train --dataset A --arm uw --seed 0                 # one study run
     torchrun --standalone --nproc_per_node=2 -m pipeline.train --dataset A --model compact_15l --seed 0
 """
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
 from pathlib import Path
+from typing import Optional
 
-from compact_perception.core.catalog import dataset_ids, model_ids
 from compact_perception.core.cache import CacheError
+from compact_perception.core.catalog import dataset_ids, model_ids
 from compact_perception.core.config import ParamsError
-from compact_perception.core.layout import run_paths
 from compact_perception.core.errors import RunError
+from compact_perception.plan import PlannedRun, dataset_runs, recipe_of
+from compact_perception.training.parallel import Job, JobError, run_jobs
 from compact_perception.training.train import train_run
 from compact_perception.weighting import weighting_settings
 
-from ._common import start
+from ._common import start, worker_params
+
+log = logging.getLogger("pipeline.train")
+
+
+def train_one(params_path: str, dataset: str, model: str, seed: int, arm: Optional[str], cache: str, out: str,
+              progress: bool) -> dict:
+    """One run, in a worker process or in this one (``progress``: a per-step bar, for a run alone):
+    its summary's stopping facts."""
+    params = worker_params(params_path)
+    recipe = recipe_of(params, model, arm)
+    key = f"study.arms.{arm}" if arm else f"train.models.{model}"
+    summary = train_run(params, dataset, model, seed, Path(cache), Path(out), recipe=recipe, recipe_key=key,
+                        export_onnx=arm is None, progress=progress)
+    return {k: summary.get(k) for k in ("epochs_run", "best_epoch", "stop_reason")}
+
+
+def _selected(params, args) -> list[PlannedRun]:
+    runs = dataset_runs(params, args.dataset)
+    if args.model or args.arm or args.seed is not None:
+        runs = [r for r in runs if (args.model is None or (r.model == args.model and r.arm is None))
+                and (args.arm is None or r.arm == args.arm) and (args.seed is None or r.seed == args.seed)]
+        if not runs:
+            raise ParamsError(f"{args.params}: no run of {args.dataset} with model {args.model}, arm {args.arm}, "
+                              f"seed {args.seed} (the seeds and arms params.yaml lists at scale {params.scale})")
+    if args.out is not None and len(runs) != 1:
+        raise ParamsError(f"--out: names one run's folder, but {len(runs)} runs are selected")
+    return runs
 
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--dataset", required=True, choices=dataset_ids())
-    ap.add_argument("--model", required=True, choices=model_ids())
-    ap.add_argument("--seed", required=True, type=int, help="one of params.yaml's seeds")
+    ap.add_argument("--model", default=None, choices=model_ids(), help="only this model's runs")
+    ap.add_argument("--arm", default=None, help="only this study arm's runs")
+    ap.add_argument("--seed", default=None, type=int, help="only this seed's runs")
     ap.add_argument("--params", default="params.yaml")
     ap.add_argument("--cache", type=Path, default=None, help="default data/cache/<dataset>")
-    ap.add_argument("--out", type=Path, default=None, help="default runs/<dataset>/<model>/seed<seed>")
+    ap.add_argument("--out", type=Path, default=None, help="one run's folder (default: core.layout's)")
     args = ap.parse_args(argv)
     params = start(args.params)
-    if args.model not in params.train.models:
-        raise SystemExit(f"error: params.yaml has no train.models.{args.model} recipe")
     try:
-        weighting_settings(params.train.models[args.model], args.params)  # before anything is written
-        train_run(
-            params, args.dataset, args.model, args.seed,
-            args.cache or Path("data/cache") / args.dataset,
-            args.out or run_paths(args.dataset, args.model, args.seed).run_dir,
-        )
-    except (RunError, CacheError, ParamsError) as err:
+        for m in params.model_ids:  # every recipe's and arm's weighting settings, before anything is written
+            weighting_settings(recipe_of(params, m, None), args.params)
+        for arm in params.study.arm_ids:
+            weighting_settings(recipe_of(params, params.study.base_model, arm), args.params)
+        runs = _selected(params, args)
+        cache = str(args.cache or Path("data/cache") / args.dataset)
+        alone = len(runs) == 1
+        jobs = [Job(r.name, (args.params, r.dataset, r.model, r.seed, r.arm, cache, str(args.out or r.paths.run_dir),
+                             alone), cost=r.max_epochs) for r in runs]
+        done = run_jobs(train_one, jobs, 1 if alone else params.train.parallel_runs, desc=f"train {args.dataset}")
+    except (JobError, RunError, CacheError, ParamsError) as err:
         sys.exit(f"error: {err}")
+    for r, facts in zip(runs, done):
+        log.info("%s: %s epochs (best %s), stopped by %s", r.name, facts["epochs_run"], facts["best_epoch"],
+                 facts["stop_reason"])
 
 
 if __name__ == "__main__":

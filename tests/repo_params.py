@@ -44,3 +44,29 @@ def section(path: str, **overrides: Any) -> Any:
     for key in path.split("."):
         obj = obj[key] if isinstance(obj, dict) else getattr(obj, key)
     return type(obj).model_validate({**obj.model_dump(), **overrides})
+
+
+def scaled(value: Any) -> dict:
+    """``{default: v, full: v, paper: v}``: a Scaled value equal at every scale."""
+    from compact_perception.core.config import SCALES
+
+    return {s: copy.deepcopy(value) for s in SCALES}
+
+
+def cap_epochs(d: dict, epochs: int) -> dict:
+    """Every run of params dict ``d`` capped at ``epochs``: each dataset's training cap and every
+    recipe's own cap (the baselines'), at every scale. Returns ``d``."""
+    for ds in d["datasets"].values():
+        ds["training"]["max_epochs"] = scaled(epochs)
+    for recipe in d["train"]["models"].values():
+        if "max_epochs" in recipe:
+            recipe["max_epochs"] = scaled(epochs)
+    return d
+
+
+def set_seeds(d: dict, seeds: list[int], baseline_seeds: list[int] | None = None) -> dict:
+    """Every dataset's compact seeds (and the baselines') at every scale. Returns ``d``."""
+    for ds in d["datasets"].values():
+        ds["training"]["seeds"] = scaled(list(seeds))
+    d["baseline_seeds"] = scaled(list(baseline_seeds if baseline_seeds is not None else seeds))
+    return d

@@ -304,8 +304,8 @@ def seed_map(seeds: Sequence[int] = SEEDS, baseline_seeds: Sequence[int] = SEEDS
 
 # ----------------------------------------------------------------------------- the loss-balancing study
 def study_run_dirs(root: Path, arm: str, seed: int, ds: str) -> tuple[Path, Path]:
-    """(runs/study/<arm>/seed<k>/<ds>, results/study/<arm>/seed<k>/<ds>/metrics.json) as documented."""
-    tail = Path("study") / arm / f"seed{seed}" / ds
+    """(runs/<ds>/study/<arm>/seed<k>, results/<ds>/study/<arm>/seed<k>/metrics.json) as documented."""
+    tail = Path(ds) / "study" / arm / f"seed{seed}"
     return root / "runs" / tail, root / "results" / tail / "metrics.json"
 
 
@@ -324,7 +324,7 @@ def write_study_run(root: Path, arm: str, seed: int, ds: str, means: Mapping[str
     met["mv"] = {"value": float(np.var(m)), "definition": "population variance of the four test-set means"}
     met.update(n_frames=n_frames, source="simulated (embedded world)", device="CPU")
     write_json(metrics_path, met)
-    eval_dir = root / "data" / "eval" / "study" / arm / f"seed{seed}" / ds
+    eval_dir = root / "data" / "eval" / ds / "study" / arm / f"seed{seed}"
     eval_dir.mkdir(parents=True, exist_ok=True)
     df = _scores(ds, TASK_COLUMNS, n_frames, means, 0.0, 0.01, np.random.default_rng([seed, len(arm), len(ds)]))
     (eval_dir / "per_frame.csv").write_text(df.to_csv(index=False, float_format="%.10f"))

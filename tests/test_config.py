@@ -75,9 +75,11 @@ def test_missing_file(tmp_path):
         (("train", "channels_last"), "no", r"train\.channels_last: .*boolean"),
         (("train", "plateau_factor"), True, r"train\.plateau_factor: .*number"),
         (("seed",), "2022", r"seed: .*integer"),
-        (("train", "max_epochs", "default"), 0, r"train\.max_epochs: .*default must be at least 1"),
-        (("train", "max_epochs", "paper"), -3, r"train\.max_epochs: .*paper must be at least 1"),
-        (("train", "models", "gradnorm_segnet", "max_epochs"), {"default": 0, "paper": 300},  # a model's override
+        (("datasets", "A", "training", "max_epochs", "default"), 0,
+         r"datasets\.A\.training\.max_epochs: .*default must be at least 1"),
+        (("datasets", "B", "training", "max_epochs", "full"), -3,
+         r"datasets\.B\.training\.max_epochs: .*full must be at least 1"),
+        (("train", "models", "gradnorm_segnet", "max_epochs"), {"default": 0, "full": 100, "paper": 300},  # a model's override
          r"train\.models\.gradnorm_segnet\.max_epochs: .*at least 1"),
         (("datasets", "nuscenes", "sim_scenes", "default"), 2, r"datasets\.nuscenes\.sim_scenes: .*at least 3"),
         (("datasets", "nuscenes", "split_seed"), -1, r"datasets\.nuscenes\.split_seed"),
@@ -195,8 +197,8 @@ def _assert_rejected(params_dict, path, value, fragment):
     [
         (("dataset_ids",), ["A", "D"], r"dataset_ids: .*unknown dataset\(s\) \['D'\]"),
         (("sim_ids",), ["A", "A"], r"sim_ids: .*distinct ids"),
-        (("model_ids",), ["compact_1l"], r"model_ids: .*compact_ids \+ baseline_ids"),
-        (("baseline_ids",), ["resnet"], r"model_ids: "),
+        (("model_ids",), ["compact_1l", "resnet"], r"model_ids: .*unknown model\(s\) \['resnet'\]"),
+        (("model_ids",), ["compact_1l", "compact_1l"], r"model_ids: .*distinct ids"),
     ],
 )
 def test_run_lists_are_checked(params_dict, path, value, fragment):
@@ -205,7 +207,6 @@ def test_run_lists_are_checked(params_dict, path, value, fragment):
 
 
 def test_a_model_listed_without_a_recipe_is_named(params_dict):
-    params_dict["baseline_ids"] = params_dict["baseline_ids"] + ["resnet"]
-    params_dict["model_ids"] = params_dict["model_ids"] + ["resnet"]
-    with pytest.raises(ParamsError, match=r"model_ids: no recipe train\.models\.<id> for \['resnet'\]"):
+    del params_dict["train"]["models"]["polarnet"]
+    with pytest.raises(ParamsError, match=r"model_ids: no recipe train\.models\.<id> for \['polarnet'\]"):
         parse_params(params_dict)

@@ -19,6 +19,8 @@ from pathlib import Path
 import pytest
 import yaml
 
+from repo_params import cap_epochs, set_seeds
+
 pytestmark = pytest.mark.slow
 
 OTHER_MACHINE = {
@@ -29,21 +31,23 @@ OTHER_MACHINE = {
     "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "2",  # other core counts
 }
 STAGES = (["generate", "--dataset", "A"], ["preprocess", "--dataset", "A"], ["nuscenes_sim"], ["ingest_nuscenes"],
-          ["train", "--dataset", "A", "--model", "compact_15l", "--seed", "0"], ["evaluate", "--dataset", "A", "--model", "compact_15l"])
+          ["train", "--dataset", "A"], ["evaluate", "--dataset", "A"])
 
 
 def _tiny_params(root: Path) -> dict:
     p = yaml.safe_load((root / "params.yaml").read_text())
-    p["world"]["resolution"] = {"default": 32, "paper": 128}
+    p["world"]["resolution"] = {"default": 32, "full": 32, "paper": 128}
     p["world"]["lidar"]["horizontal_samples"] = 256
     p["world"]["frames_per_episode"] = 2
     p["world"]["workers"] = 1
     p["datasets"]["A"]["frames"]["default"] = 10
+    p["datasets"]["A"]["split_ratio"]["default"] = {"train": 3, "val": 2, "test": 5}
     p["datasets"]["nuscenes"]["sim_scenes"]["default"] = 5
     p["datasets"]["nuscenes"]["sim_samples_per_scene"] = 2
-    p["train"]["max_epochs"]["default"] = 1
+    cap_epochs(p, 1)
     p["train"]["batch_size"] = 2
-    p["seeds"] = [0]
+    set_seeds(p, [0])
+    p["model_ids"] = ["compact_15l"]           # one run: the stage trains and scores it alone
     return p
 
 

@@ -18,7 +18,7 @@ import yaml
 
 from compact_perception.core.config import ParamsError, load_params
 
-from repo_params import ROOT, repo_params_dict
+from repo_params import ROOT, cap_epochs, repo_params_dict, set_seeds
 from synthetic import make_cache
 
 
@@ -47,8 +47,8 @@ def _files(root: Path) -> set[Path]:
     "path, value, key",
     [
         (("train", "batch_size"), True, "train.batch_size"),
-        (("train", "max_epochs", "default"), 0, "train.max_epochs"),
-        (("train", "models", "gradnorm_segnet", "max_epochs"), {"default": 3, "paper": 0},
+        (("datasets", "A", "training", "max_epochs", "default"), 0, "datasets.A.training.max_epochs"),
+        (("train", "models", "gradnorm_segnet", "max_epochs"), {"default": 3, "full": 3, "paper": 0},
          "train.models.gradnorm_segnet.max_epochs"),
         (("train", "recipe", "lr_min"), None, "train.recipe.lr_min"),  # None: delete the key
         (("datasets", "A", "seed_offset"), None, "datasets.A.seed_offset"),
@@ -78,23 +78,24 @@ def test_bad_params_stop_a_stage_with_one_line(tmp_path):
 
     d = repo_params_dict()
     d["train"]["batch_size"] = True
-    d["train"]["max_epochs"]["default"] = 0
+    d["datasets"]["A"]["training"]["max_epochs"]["default"] = 0
     p = _write_params(tmp_path / "params.yaml", d)
     msg = _exit_message(main, ["--params", str(p), "--out", str(tmp_path / "out")])
-    assert "train.batch_size" in msg and "train.max_epochs" in msg and str(p) in msg
+    assert "train.batch_size" in msg and "datasets.A.training.max_epochs" in msg and str(p) in msg
     assert not (tmp_path / "out").exists()
 
 
-@pytest.mark.parametrize("stage, where, value, message", [
-    ("study", ("study", "arms", "uw", "uw", "lr"), "fast",
-     "study.arms.uw.uw.lr: Input should be a valid number (got 'fast')"),
-    ("train", ("train", "models", "compact_15l_mgn", "mgn", "alpha"), -1.0,
+@pytest.mark.parametrize("where, value, message", [
+    (("study", "arms", "uw", "uw", "lr"), "fast", "study.arms.uw.uw.lr: Input should be a valid number (got 'fast')"),
+    (("train", "models", "compact_15l_mgn", "mgn", "alpha"), -1.0,
      "train.models.compact_15l_mgn.mgn.alpha: Input should be greater than or equal to 0 (got -1.0)"),
 ])
-def test_bad_weighting_settings_stop_the_stage_before_it_writes(tmp_path, monkeypatch, stage, where, value, message):
-    """A weighting's settings are checked by its method's schema when the stage starts (no
-    traceback from deep inside the run), naming the params file and the key."""
-    import importlib
+@pytest.mark.parametrize("argv", [[], ["--model", "compact_1l", "--seed", "0"]])
+def test_bad_weighting_settings_stop_the_stage_before_it_writes(tmp_path, monkeypatch, where, value, message, argv):
+    """Every recipe's and study arm's weighting settings are checked by the method's schema when
+    a train stage starts, whether it trains them or not (the study's arms do not run at the
+    default scale): one line naming the params file and the key, nothing written."""
+    from pipeline.train import main
 
     d = repo_params_dict()
     node = d
@@ -103,9 +104,7 @@ def test_bad_weighting_settings_stop_the_stage_before_it_writes(tmp_path, monkey
     node[where[-1]] = value
     p = _write_params(tmp_path / "params.yaml", d)
     monkeypatch.chdir(tmp_path)
-    argv = ["--arm", "uw"] if stage == "study" else ["--dataset", "A", "--model", "compact_15l_mgn",
-                                                      "--cache", str(tmp_path / "no_cache")]
-    msg = _exit_message(importlib.import_module(f"pipeline.{stage}").main, [*argv, "--seed", "0", "--params", str(p)])
+    msg = _exit_message(main, ["--dataset", "A", *argv, "--cache", str(tmp_path / "no_cache"), "--params", str(p)])
     assert msg == f"error: {p}: {message}", msg
     assert _files(tmp_path) == {Path("params.yaml")}
 
@@ -152,7 +151,7 @@ def test_missing_nuscenes_dataroot_as_a_process(tmp_path):
 # ----------------------------------------------------------------------------- truncated cache
 def _train_params(tmp_path: Path) -> Path:
     d = repo_params_dict()
-    d["train"]["max_epochs"] = {"default": 1, "paper": 1}
+    cap_epochs(d, 1)
     d["train"]["batch_size"] = 2
     d["train"]["num_workers"] = 2  # loader workers: the error must come before them, without their noise
     d["train"]["device"] = "cpu"
@@ -203,7 +202,8 @@ def _eval_tree(tmp_path: Path) -> Path:
     torch.save({"model": build_model("compact_1l", "A").state_dict(), "epoch": 0}, run / "best.pt")
     d = repo_params_dict()
     d["train"]["device"] = "cpu"
-    d["seeds"] = [0]
+    set_seeds(d, [0])
+    d["model_ids"] = ["compact_1l"]
     _write_params(tmp_path / "params.yaml", d)
     return tmp_path
 
@@ -216,7 +216,7 @@ def test_truncated_cache_stops_evaluate(tmp_path, monkeypatch):
     _truncate(victim, drop=1)
     before = _files(root)
     monkeypatch.chdir(root)
-    msg = _exit_message(main, ["--dataset", "A", "--model", "compact_1l", "--params", "params.yaml"])
+    msg = _exit_message(main, ["--dataset", "A", "--params", "params.yaml"])
     assert "data/cache/A/test/bevp.npy" in msg and "truncated" in msg
     assert _files(root) == before  # no results/, no data/eval/
 
@@ -228,7 +228,7 @@ def test_missing_checkpoint_stops_evaluate(tmp_path, monkeypatch):
     (root / "runs" / "A" / "compact_1l" / "seed0" / "best.pt").unlink()
     before = _files(root)
     monkeypatch.chdir(root)
-    msg = _exit_message(main, ["--dataset", "A", "--model", "compact_1l", "--params", "params.yaml"])
+    msg = _exit_message(main, ["--dataset", "A", "--params", "params.yaml"])
     assert "runs/A/compact_1l/seed0/best.pt" in msg
     assert _files(root) == before
 
@@ -314,6 +314,7 @@ def _tiny_sim_params(tmp_path: Path) -> Path:
     d["world"]["frames_per_episode"] = 1
     d["world"]["workers"] = 1
     d["datasets"]["A"]["frames"]["default"] = 5
+    d["datasets"]["A"]["split_ratio"]["default"] = {"train": 3, "val": 1, "test": 1}
     d["preprocess"]["workers"] = 1
     return _write_params(tmp_path / "params.yaml", d)
 
@@ -367,6 +368,6 @@ def test_missing_meta_stops_evaluate_naming_the_cache(tmp_path, monkeypatch):
     (root / "data" / "cache" / "A" / "meta.json").unlink()
     before = _files(root)
     monkeypatch.chdir(root)
-    msg = _exit_message(main, ["--dataset", "A", "--model", "compact_1l", "--params", "params.yaml"])
+    msg = _exit_message(main, ["--dataset", "A", "--params", "params.yaml"])
     assert "data/cache/A" in msg and "meta.json" in msg
     assert _files(root) == before

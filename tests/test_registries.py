@@ -23,8 +23,6 @@ def test_the_run_lists_equal_the_registries():
     p = load_params(ROOT / "params.yaml")
     assert p.sim_ids == list(catalog.sim_dataset_ids())
     assert p.dataset_ids == list(catalog.dataset_ids())
-    assert p.compact_ids == list(catalog.compact_model_ids())
-    assert p.baseline_ids == list(catalog.baseline_model_ids())
     assert p.model_ids == list(catalog.model_ids())
 
 
@@ -33,7 +31,7 @@ def test_dvc_yaml_reads_its_lists_from_params():
     params.yaml's lists."""
     text = (ROOT / "dvc.yaml").read_text()
     assert "vars" not in yaml.safe_load(text)
-    for key in ("sim_ids", "dataset_ids", "compact_ids", "baseline_ids", "model_ids"):
+    for key in ("sim_ids", "dataset_ids"):
         assert "${" + key + "}" in text, key
 
 

@@ -21,13 +21,14 @@ from compact_perception.core.config import parse_params
 from compact_perception.evaluate import evaluate_run
 from compact_perception.training.train import train_run
 
+from repo_params import cap_epochs
 from synthetic import make_cache
 
 MODEL = "compact_15l_mgn"  # dropout, MGN weights and momentum: every stateful part of a run
 
 
 def _params(params_dict: dict, *, epochs: int = 3, workers: int = 2):
-    params_dict["train"]["max_epochs"] = {"default": epochs, "paper": epochs}
+    cap_epochs(params_dict, epochs)
     params_dict["train"]["batch_size"] = 2
     params_dict["train"]["num_workers"] = workers
     params_dict["train"]["device"] = "cpu"
@@ -124,8 +125,8 @@ def test_digest_covers_every_result_changing_train_param(params_dict):
     base = parse_params(params_dict)
     d0 = run_digest(base, "A", MODEL, 1, "data", 1)
     changes = {
-        ("num_threads",): 1, ("precision",): "bf16", ("channels_last",): True, ("compile",): True, ("batch_size",): 3, ("plateau_patience",): 7,
-        ("early_stop_patience",): 9, ("models", MODEL, "lr"): 0.05, ("models", MODEL, "momentum"): 0.5,
+        ("num_threads",): 2, ("precision",): "bf16", ("channels_last",): False, ("compile",): True, ("batch_size",): 3, ("plateau_patience",): 7,
+        ("early_stop_patience", "default"): 9, ("models", MODEL, "lr"): 0.05, ("models", MODEL, "momentum"): 0.5,
     }
     for path, value in changes.items():
         d = yaml.safe_load(yaml.safe_dump(params_dict))
@@ -135,8 +136,11 @@ def test_digest_covers_every_result_changing_train_param(params_dict):
         node[path[-1]] = value
         assert run_digest(parse_params(d), "A", MODEL, 1, "data", 1) != d0, path
     d = yaml.safe_load(yaml.safe_dump(params_dict))
-    d["train"]["num_workers"] = 0
+    d["train"]["num_workers"] = 2
+    d["train"]["parallel_runs"] = 1
     assert run_digest(parse_params(d), "A", MODEL, 1, "data", 1) == d0
+    d["datasets"]["A"]["training"]["max_epochs"]["default"] = 11     # the run's cap is part of its result
+    assert run_digest(parse_params(d), "A", MODEL, 1, "data", 1) != d0
     assert run_digest(base, "A", MODEL, 1, "other data", 1) != d0
     # the base recipe counts through the run's merged recipe: a base key the model inherits moves the
     # digest, one the model sets itself does not

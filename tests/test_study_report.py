@@ -20,7 +20,7 @@ PAPER = ("compact_15l", "compact_15l_mgn", "compact_15l_mgn_authors")
 ARMS = ("gradnorm", "uw", "dwa", "pcgrad", "cagrad", "single_de", "single_ss", "single_ls", "single_bevp")
 WEIGHTING = {"gradnorm": "gradnorm", "uw": "uw", "dwa": "dwa", "pcgrad": "pcgrad", "cagrad": "cagrad",
              **{f"single_{t}": "single" for t in ("de", "ss", "ls", "bevp")}}
-SPEC = StudySpec(("A",), (0, 1, 2), ARMS, WEIGHTING, {f"single_{t}": t for t in ("de", "ss", "ls", "bevp")})
+SPEC = StudySpec(("A",), {"A": (0, 1, 2)}, ARMS, WEIGHTING, {f"single_{t}": t for t in ("de", "ss", "ls", "bevp")})
 OTHER = 0.1    # the single-task arms' metrics of the tasks they did not train
 W = {"w_de": [1.0, 1.2, 1.4], "w_ss": [1.0, 0.9, 0.8], "w_ls": [1.0, 1.0, 1.1], "w_bevp": [1.0, 0.9, 0.7]}
 
@@ -55,7 +55,7 @@ def _tree(root: Path, *, single_bevp: bool = True) -> None:
                     epochs_run=4)
     write_study_run(root, "uw", 0, "A", _means(0.10, 0.50, 0.50, 0.50), weights=W)
     write_study_run(root, "pcgrad", 0, "A", _means(0.10, 0.50, 0.50, 0.50))
-    for k in SPEC.seeds:
+    for k in SPEC.seeds["A"]:
         write_study_run(root, "dwa", k, "A", _means(0.10, 0.55, 0.55, 0.30), weights=W)
 
 
@@ -86,7 +86,7 @@ def test_spec_from_repo_params_and_method_order() -> None:
     p = repo_params()
     spec = StudySpec.from_params(p)
     assert spec.arm_ids == tuple(p.study.arm_ids) and spec.datasets == tuple(p.study.datasets.at(p.scale))
-    assert spec.seeds == tuple(p.seeds)
+    assert spec.seeds == {ds: tuple(p.seeds_of("compact", ds)) for ds in spec.datasets}
     assert set(spec.single_task.values()) <= {"de", "ss", "ls", "bevp"}
     methods = study_methods(spec)
     assert [m.id for m in methods] == list(PAPER) + list(p.study.arm_ids)
@@ -138,7 +138,7 @@ def test_rows_mean_sd_csv_and_figure(tmp_path: Path, caplog: pytest.LogCaptureFi
     assert rows["single_de"]["above_floor"] == "yes"
     assert float(rows["single_de"]["mae_de_mean"]) == pytest.approx(0.10)
     md = out.markdown.read_text()
-    assert "Δm" in md and "LibMTL" in md and "seeds`: 0, 1, 2" in md and "**" not in md.split("## Set A")[1]
+    assert "Δm" in md and "LibMTL" in md and "training.seeds`: Set A: 0, 1, 2" in md and "**" not in md.split("## Set A")[1]
     assert "±2 sd are not separated" in md and "No runs yet: CAGrad (Liu et al. 2021)." in md
     assert "| GradNorm (Chen et al. 2018) | 2 | 0.100 ± 0.028 |" in md and "below floor | 2.50 ± 0.71 |" in md
     assert "| Uncertainty weighting (Kendall et al. 2018) | 1 | 0.100 ± — |" in md

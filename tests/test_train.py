@@ -14,11 +14,12 @@ from compact_perception.core.config import parse_params
 from compact_perception.training.schedule import EarlyStop, Plateau
 from compact_perception.training.train import selection_score, train_run
 
+from repo_params import cap_epochs
 from synthetic import make_cache
 
 
 def tiny_params(params_dict: dict, epochs: int = 3, batch: int = 2) -> object:
-    params_dict["train"]["max_epochs"] = {"default": epochs, "paper": epochs}
+    cap_epochs(params_dict, epochs)
     params_dict["train"]["batch_size"] = batch
     params_dict["train"]["num_workers"] = 0
     params_dict["train"]["device"] = "cpu"
@@ -136,7 +137,7 @@ def test_two_process_gloo_matches_one_process(tmp_path, params_dict, root):
     """
     import yaml
 
-    params_dict["train"]["max_epochs"] = {"default": 2, "paper": 2}
+    cap_epochs(params_dict, 2)
     params_dict["train"]["batch_size"] = 4
     params_dict["train"]["num_workers"] = 0
     params_dict["train"]["device"] = "cpu"

@@ -8,11 +8,12 @@ import pytest
 import torch
 import yaml
 
+from repo_params import cap_epochs
 from synthetic import make_cache
 
 
 def _params_file(tmp_path, params_dict, *, epochs=2, batch=2):
-    params_dict["train"]["max_epochs"] = {"default": epochs, "paper": epochs}
+    cap_epochs(params_dict, epochs)
     params_dict["train"]["batch_size"] = batch
     params_dict["train"]["num_workers"] = 0
     params_dict["train"]["device"] = "cpu"

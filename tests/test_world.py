@@ -17,7 +17,7 @@ from compact_perception.world.generate import generate_dataset, render_episode
 
 
 def _params(d: dict, res: int = 32, samples: int = 256, **world):
-    d["world"]["resolution"] = {"default": res, "paper": 128}
+    d["world"]["resolution"] = {"default": res, "full": res, "paper": 128}
     d["world"]["lidar"]["horizontal_samples"] = samples
     d["world"].update(world)
     return parse_params(d)
@@ -187,7 +187,7 @@ def test_all_classes_appear_over_towns(params_dict):
 
 
 def _tiny(d: dict, workers: int = 1):
-    d["datasets"]["A"]["frames"] = {"default": 10, "paper": 2000}
+    d["datasets"]["A"]["frames"] = {"default": 10, "full": 10, "paper": 2000}
     d["datasets"]["A"]["split_ratio"]["default"] = {"train": 3, "val": 1, "test": 1}
     d["world"]["frames_per_episode"] = 2
     return _params(d, res=32, samples=128, workers=workers)
@@ -240,7 +240,7 @@ def test_interrupted_generation_leaves_nothing(params_dict, tmp_path: Path, monk
 @pytest.mark.parametrize(
     "edit, key",
     [
-        (lambda d: d["datasets"]["A"].__setitem__("frames", {"default": -5, "paper": 2000}), "datasets.A.frames"),
+        (lambda d: d["datasets"]["A"].__setitem__("frames", {"default": -5, "full": 10, "paper": 2000}), "datasets.A.frames"),
         (lambda d: d["datasets"]["B"].__setitem__("train_towns", ["town09"]), "datasets.B.train_towns"),
         (lambda d: d["world"]["camera"].__setitem__("fov_deg", 200), "world.camera.fov_deg"),
         (lambda d: d["world"]["lidar"].__setitem__("lower_fov_deg", 30), "world.lidar"),
@@ -253,7 +253,7 @@ def test_bad_params_name_the_key(params_dict, edit, key):
 
 
 def test_inconsistent_frames_per_episode_fails_before_work(params_dict, tmp_path: Path):
-    params_dict["world"]["frames_per_episode"] = 50  # > 100 frames / 5
+    params_dict["world"]["frames_per_episode"] = 60  # > set A's 50 validation frames (500 at 6:1:3)
     p = parse_params(params_dict)
     with pytest.raises(ParamsError, match=r"world\.frames_per_episode"):
         generate_dataset(p, "A", tmp_path / "A")

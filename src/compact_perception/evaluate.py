@@ -157,15 +157,21 @@ def _compact_prediction(task: str, pred: torch.Tensor) -> np.ndarray:
     return (p > 0.5).numpy().astype(np.uint8)
 
 
+def best_checkpoint(dataset_id: str, model_id: str, run_dir: Path) -> Path:
+    """``run_dir/best.pt``; FileNotFoundError naming it where the run has not written one."""
+    best = Path(run_dir) / "best.pt"
+    if not best.is_file():
+        raise FileNotFoundError(f"{best}: no best checkpoint; has the training of {dataset_id}/{model_id} finished?")
+    return best
+
+
 def load_trained(dataset_id: str, model_id: str, run_dir: Path) -> tuple[torch.nn.Module, int]:
     """The network of ``run_dir/best.pt`` (built for the tasks it was trained for), in eval mode,
     and the epoch it was saved at.
 
     The checkpoint is read with ``weights_only=True``: tensors and plain containers only, so a
     crafted file cannot run code (``runs/`` can come from a shared DVC cache)."""
-    best = Path(run_dir) / "best.pt"
-    if not best.is_file():
-        raise FileNotFoundError(f"{best}: no best checkpoint; has the training of {dataset_id}/{model_id} finished?")
+    best = best_checkpoint(dataset_id, model_id, run_dir)
     try:
         checkpoint = torch.load(best, map_location="cpu", weights_only=True)
         model = build_model(model_id, dataset_id, checkpoint.get("tasks"))  # the tasks it was trained for

@@ -14,10 +14,16 @@ A model's training recipe is ``train.recipe`` (the base every model shares) merg
 section named after its weighting (``mgn: {...}``), validated by that method's own schema
 (``compact_perception.weighting``), which this module does not import (no torch here).
 
-``scale`` is the one switch between the default scale (a 2-core CPU, about 30 min for
-the whole pipeline) and the paper's scale: every value that differs between the two is
-written as ``{default: ..., paper: ...}`` (a :class:`Scaled`) and resolved with
+``scale`` is the one switch (README "Scale"): ``default`` (a 2-core CPU, under an hour for the
+whole pipeline: set A's main ablation trained deep, the rest shallow), ``full`` (the same data,
+every dataset, model, seed and the study trained to the plateau: hours on a CPU) and ``paper``
+(the paper's frames, resolution and schedule: a GPU). Every value that differs between them is
+written as ``{default: ..., full: ..., paper: ...}`` (a :class:`Scaled`) and resolved with
 :meth:`Scaled.at`.
+
+How deep a run trains is its dataset's ``training`` (:class:`TrainingBudget`: the compact
+models' seeds and the epoch cap; a recipe's own ``max_epochs`` overrides the cap): early stopping
+(``train.early_stop_patience``) ends a run when validation stops improving, the cap only bounds it.
 """
 from __future__ import annotations
 
@@ -37,7 +43,9 @@ T = TypeVar("T")
 TOWNS = ("town01", "town02", "town03", "town04", "town05")
 # Model and dataset ids live in the registries (compact_perception.core.catalog, no torch): the recipes
 # of train.models must be of registered models.
-ScaleName = Literal["default", "paper"]
+ScaleName = Literal["default", "full", "paper"]
+#: The values of ``scale``, each a field of every :class:`Scaled`.
+SCALES: tuple[str, ...] = ("default", "full", "paper")
 
 
 class Strict(BaseModel):
@@ -47,9 +55,10 @@ class Strict(BaseModel):
 
 
 class Scaled(Strict, Generic[T]):
-    """A value that differs between the default and the paper scale."""
+    """A value that differs between the scales (``default``, ``full``, ``paper``)."""
 
     default: T
+    full: T
     paper: T
 
     def at(self, scale: ScaleName) -> T:
@@ -57,9 +66,9 @@ class Scaled(Strict, Generic[T]):
 
 
 def _scaled_at_least(v: Optional[Scaled[int]], lo: int) -> Optional[Scaled[int]]:
-    """Both scales of an integer :class:`Scaled` count are ``>= lo``."""
+    """Every scale of an integer :class:`Scaled` count is ``>= lo``."""
     if v is not None:
-        for name in ("default", "paper"):
+        for name in SCALES:
             if getattr(v, name) < lo:
                 raise ValueError(f"{name} must be at least {lo}, got {getattr(v, name)}")
     return v
@@ -117,7 +126,7 @@ class WorldParams(Strict):
     @field_validator("resolution")
     @classmethod
     def _res(cls, v: Scaled[int]) -> Scaled[int]:
-        for name in ("default", "paper"):
+        for name in SCALES:
             r = getattr(v, name)
             if not 16 <= r <= 1024 or r % 16:
                 raise ValueError(f"resolution.{name} must be a multiple of 16 in [16, 1024], got {r}")
@@ -156,6 +165,35 @@ class SplitRatio(Strict):
         return n
 
 
+def _distinct_seeds(v: list[int]) -> list[int]:
+    """Training seeds: a non-empty list of distinct non-negative integers."""
+    if not v or any(k < 0 for k in v) or len(set(v)) != len(v):
+        raise ValueError(f"expected a non-empty list of distinct non-negative integers, got {v}")
+    return v
+
+
+class TrainingBudget(Strict):
+    """How deep a dataset's runs train (section IV-D; README "Scale"): the training seeds of the
+    compact models (each (model, seed) one run, ``runs/<ds>/<model>/seed<k>``) and the epoch cap.
+    Early stopping (``train.early_stop_patience`` epochs without a new best) ends a run; the cap
+    bounds it where the budget allows no more (a run's ``summary.json`` says which ended it)."""
+
+    seeds: Scaled[list[int]]
+    max_epochs: Scaled[int]
+
+    @field_validator("seeds")
+    @classmethod
+    def _seeds(cls, v: Scaled[list[int]]) -> Scaled[list[int]]:
+        for name in SCALES:
+            _distinct_seeds(getattr(v, name))
+        return v
+
+    @field_validator("max_epochs")
+    @classmethod
+    def _epochs(cls, v: Scaled[int]) -> Scaled[int]:
+        return _scaled_at_least(v, 1)
+
+
 class SimDatasetParams(Strict):
     """A simulated dataset (A, B, C): town splits of paper Table I."""
 
@@ -170,6 +208,7 @@ class SimDatasetParams(Strict):
     eval_towns: list[str]
     split_by: Literal["town", "episode"]
     seed_offset: int = Field(ge=0, description="added to the top-level seed for this dataset's episodes")
+    training: TrainingBudget
 
     @field_validator("train_towns", "eval_towns")
     @classmethod
@@ -201,6 +240,7 @@ class NuScenesParams(Strict):
     sim_scenes: Scaled[int]
     sim_samples_per_scene: int = Field(ge=2, le=100)
     split_seed: int = Field(ge=0)
+    training: TrainingBudget
 
     @field_validator("sim_scenes")
     @classmethod
@@ -317,7 +357,8 @@ class ModelRecipe(Strict):
     eps: Optional[float] = Field(None, gt=0.0, description="Adam's epsilon: required with adam, not allowed with sgd")
     weight_decay: float = Field(ge=0.0)
     weighting: str = Field(min_length=1, description="a loss weighting id (weighting.WEIGHTINGS)")
-    max_epochs: Optional[Scaled[int]] = Field(None, description="overrides train.max_epochs for this model")
+    max_epochs: Optional[Scaled[int]] = Field(None, description="overrides the dataset's epoch cap "
+                                              "(datasets.<ds>.training.max_epochs) for this model")
 
     _key: str = PrivateAttr("")                                  # the params key of this recipe
     _inherited: dict[str, str] = PrivateAttr(default_factory=dict)  # key -> where its value is written
@@ -376,13 +417,16 @@ class TrainParams(Strict):
     """Section IV-D: batch 6, SGD, plateau halving, early stop, best checkpoint."""
 
     batch_size: int = Field(ge=1)
-    max_epochs: Scaled[int]
     plateau_patience: int = Field(ge=1)
     plateau_factor: float = Field(gt=0.0, lt=1.0)
     plateau_threshold: float = Field(ge=0.0, lt=1.0, description="relative improvement the 'torch' plateau "
                                      "rule requires (ReduceLROnPlateau's threshold, mode 'rel')")
-    early_stop_patience: int = Field(ge=1)
+    early_stop_patience: Scaled[int] = Field(description="epochs without a new best validation score "
+                                             "that end a run (section IV-D: 25)")
     num_workers: int = Field(ge=0, description="loader processes: any count gives the same result")
+    parallel_runs: int = Field(ge=1, le=256, description="runs a stage trains side by side, each in its own "
+                               "process with num_threads threads (training/parallel.py): any count gives the "
+                               "same result")
     num_threads: int = Field(ge=1, le=256, description="torch intra-op threads: a threaded reduction's "
                              "result depends on the count, so it is a tracked param (determinism.set_threads)")
     device: Literal["auto", "cpu", "cuda"]
@@ -409,9 +453,9 @@ class TrainParams(Strict):
             recipe.placed(f"train.models.{m}", _inherited(merged[m], changes[m], _from_base))
         return train
 
-    @field_validator("max_epochs")
+    @field_validator("early_stop_patience")
     @classmethod
-    def _epochs(cls, v: Scaled[int]) -> Scaled[int]:
+    def _patience(cls, v: Scaled[int]) -> Scaled[int]:
         return _scaled_at_least(v, 1)
 
     @field_validator("models", mode="before")
@@ -449,10 +493,10 @@ class StudyParams(Strict):
     @field_validator("datasets")
     @classmethod
     def _datasets(cls, v: Scaled[list[str]]) -> Scaled[list[str]]:
-        for name in ("default", "paper"):
+        for name in SCALES:  # an empty list: the study does not run at that scale
             ds = getattr(v, name)
-            if not ds or _unknown_datasets(ds):
-                raise ValueError(f"{name}: expected a non-empty list of {DATASET_IDS}, got {ds}")
+            if _unknown_datasets(ds) or len(set(ds)) != len(ds):
+                raise ValueError(f"{name}: expected distinct ids of {DATASET_IDS}, got {ds}")
         return v
 
     @model_validator(mode="after")
@@ -478,25 +522,22 @@ class BenchmarkParams(Strict):
 class Params(Strict):
     scale: ScaleName
     seed: int = Field(ge=0)
-    seeds: list[int] = Field(min_length=1, description="training seeds of the compact models: each (dataset, "
-                             "model) is trained once per seed (the DVC matrix); runs/<ds>/<model>/seed<k>")
-    baseline_seeds: list[int] = Field(min_length=1, description="training seeds of the baselines (fewer at the "
-                                      "default scale: a GradNorm SegNet run costs ~4 compact runs)")
+    baseline_seeds: Scaled[list[int]] = Field(description="training seeds of the baselines on every dataset "
+                                              "(the compact models': datasets.<ds>.training.seeds)")
 
     sim_ids: list[str] = Field(min_length=1, description="simulated datasets (generate/preprocess matrix)")
-    dataset_ids: list[str] = Field(min_length=1, description="datasets trained and evaluated (train matrices)")
-    compact_ids: list[str] = Field(min_length=1, description="compact models (train matrix, per `seeds`)")
-    baseline_ids: list[str] = Field(description="baselines (train_baseline matrix, per `baseline_seeds`)")
-    model_ids: list[str] = Field(min_length=1, description="every model evaluated: compact_ids + baseline_ids")
+    dataset_ids: list[str] = Field(min_length=1, description="datasets trained and evaluated (train/evaluate matrix)")
+    model_ids: list[str] = Field(min_length=1, description="the models each dataset's train stage trains and its "
+                                 "evaluate stage scores")
 
-    @field_validator("seeds", "baseline_seeds")
+    @field_validator("baseline_seeds")
     @classmethod
-    def _seeds(cls, v: list[int]) -> list[int]:
-        if any(k < 0 for k in v) or len(set(v)) != len(v):
-            raise ValueError(f"expected distinct non-negative integers, got {v}")
+    def _seeds(cls, v: Scaled[list[int]]) -> Scaled[list[int]]:
+        for name in SCALES:
+            _distinct_seeds(getattr(v, name))
         return v
 
-    @field_validator("sim_ids", "dataset_ids", "compact_ids", "baseline_ids", "model_ids")
+    @field_validator("sim_ids", "dataset_ids", "model_ids")
     @classmethod
     def _ids(cls, v: list[str]) -> list[str]:
         if len(set(v)) != len(v):
@@ -509,9 +550,10 @@ class Params(Strict):
             bad = _unknown_datasets(getattr(self, key))
             if bad:
                 raise ValueError(f"{key}: unknown dataset(s) {bad}; known: {DATASET_IDS}")
-        if self.model_ids != self.compact_ids + self.baseline_ids:
-            raise ValueError(f"model_ids: expected compact_ids + baseline_ids = {self.compact_ids + self.baseline_ids}, "
-                             f"got {self.model_ids}")
+        unknown = [m for m in self.model_ids if m not in catalog.MODELS]
+        if unknown:
+            raise ValueError(f"model_ids: unknown model(s) {unknown}; registered (core/catalog.py): "
+                             f"{list(catalog.model_ids())}")
         missing = [m for m in self.model_ids if m not in self.train.models]
         if missing:
             raise ValueError(f"model_ids: no recipe train.models.<id> for {missing}")
@@ -531,12 +573,25 @@ class Params(Strict):
             raise ParamsError(_format(err, source, lambda loc: _in_params(loc, key, inherited))) from None
         return recipe.placed(key, inherited)
 
-    def seeds_of(self, group: str) -> list[int]:
-        """The training seeds of a model group (``catalog.ModelInfo.group``): ``seeds`` for
-        ``compact``, ``baseline_seeds`` for ``baseline``."""
+    def seeds_of(self, group: str, dataset: str) -> list[int]:
+        """The training seeds of a model group (``catalog.ModelInfo.group``) on ``dataset`` at this
+        scale: ``datasets.<ds>.training.seeds`` for ``compact``, ``baseline_seeds`` for ``baseline``."""
         if group not in ("compact", "baseline"):
             raise ValueError(f"unknown model group {group!r}; known: compact, baseline")
-        return list(self.seeds if group == "compact" else self.baseline_seeds)
+        seeds = self.dataset(dataset).training.seeds if group == "compact" else self.baseline_seeds
+        return list(seeds.at(self.scale))
+
+    def max_epochs_of(self, recipe: ModelRecipe, dataset: str) -> int:
+        """The epoch cap of a run of ``recipe`` on ``dataset``: the recipe's own ``max_epochs`` where
+        it has one (a costly baseline), else ``datasets.<ds>.training.max_epochs``, at this scale."""
+        cap = recipe.max_epochs if recipe.max_epochs is not None else self.dataset(dataset).training.max_epochs
+        return cap.at(self.scale)
+
+    def dataset(self, dataset: str) -> "SimDatasetParams | NuScenesParams":
+        """The ``datasets.<ds>`` section."""
+        if dataset not in DATASET_IDS:
+            raise ParamsError(f"datasets: no dataset {dataset!r}; known: {DATASET_IDS}")
+        return getattr(self.datasets, dataset)
     world: WorldParams
     datasets: DatasetsParams
     preprocess: PreprocessParams

@@ -1,12 +1,14 @@
-"""Where one training run's files live (the DVC matrix dataset x model x seed):
+"""Where one training run's files live (each dataset's ``train@<ds>`` and ``evaluate@<ds>`` stages
+write every run of that dataset):
 
 - ``runs/<ds>/<model>/seed<k>/``          checkpoints, dvclive logs, ``summary.json`` (train)
 - ``results/<ds>/<model>/seed<k>/metrics.json``  test scores (evaluate)
 - ``data/eval/<ds>/<model>/seed<k>/``     per-frame scores and saved predictions (evaluate)
 
-``k`` is one of params.yaml's ``seeds`` (``baseline_seeds`` for a baseline). The loss-balancing
-study's runs live under ``runs/study/<arm>/seed<k>/<ds>/`` (:func:`study_paths`). Every stage and
-the report build these paths here. The trivial predictors of the floor (:mod:`..floor`), fitted
+``k`` is one of the seeds ``Params.seeds_of`` gives (the dataset's ``training.seeds`` for a
+compact model, ``baseline_seeds`` for a baseline). The loss-balancing study's runs live beside
+them, under ``<...>/<ds>/study/<arm>/seed<k>/`` (:func:`study_paths`). Every stage and the report
+build these paths here. The trivial predictors of the floor (:mod:`..floor`), fitted
 once per dataset, have no seed: ``results/<ds>/<id>/metrics.json`` and ``data/eval/<ds>/<id>/``
 (:func:`floor_paths`).
 """
@@ -15,7 +17,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["RunPaths", "run_paths", "study_paths", "floor_paths"]
+__all__ = ["RunPaths", "run_paths", "study_paths", "floor_paths", "STUDY_DIR"]
+
+#: The folder of a dataset's study runs (not a model id: :mod:`.catalog` registers none by this name).
+STUDY_DIR = "study"
 
 
 @dataclass(frozen=True)
@@ -39,10 +44,10 @@ def run_paths(dataset: str, model: str, seed: int, root: Path | str = ".") -> Ru
 
 def study_paths(arm: str, seed: int, dataset: str, root: Path | str = ".") -> RunPaths:
     """Paths of one study run (arm ``arm`` of the loss-balancing study, training seed ``seed``, on
-    ``dataset``): ``runs/study/<arm>/seed<k>/<ds>/``, ``results/study/<arm>/seed<k>/<ds>/metrics.json``,
-    ``data/eval/study/<arm>/seed<k>/<ds>/``. One study stage trains an arm at one seed on every
-    dataset of ``study.datasets``, so its outputs are the ``seed<k>`` folders."""
-    root, tail = Path(root), Path("study") / arm / f"seed{seed}" / dataset
+    ``dataset``): ``runs/<ds>/study/<arm>/seed<k>/``, ``results/<ds>/study/<arm>/seed<k>/metrics.json``,
+    ``data/eval/<ds>/study/<arm>/seed<k>/``: inside the dataset's own folders, which its train and
+    evaluate stages write."""
+    root, tail = Path(root), Path(dataset) / STUDY_DIR / arm / f"seed{seed}"
     return RunPaths(dataset, f"study:{arm}", seed, root / "runs" / tail, root / "results" / tail / "metrics.json",
                     root / "data" / "eval" / tail)
 

@@ -77,19 +77,19 @@ MD_NAME, CSV_NAME = "weighting.md", "weighting.csv"
 @dataclass(frozen=True)
 class StudySpec:
     """What the report needs of params.yaml: ``datasets`` (``study.datasets`` at ``scale``), the
-    training ``seeds``, the arms in ``study.arm_ids`` order with their weighting id, and the task
-    of each single-task arm."""
+    training ``seeds`` per dataset (the base model's: ``Params.seeds_of``), the arms in
+    ``study.arm_ids`` order with their weighting id, and the task of each single-task arm."""
 
     datasets: tuple[str, ...]
-    seeds: tuple[int, ...]
+    seeds: Mapping[str, tuple[int, ...]]
     arm_ids: tuple[str, ...]
     arm_weighting: Mapping[str, str]
     single_task: Mapping[str, str] = field(default_factory=dict)
 
     @classmethod
     def from_params(cls, params: Any) -> "StudySpec":
-        """From validated (possibly audited) params: ``scale``, ``seeds``, ``study.datasets``,
-        ``study.arm_ids``, ``study.arms``."""
+        """From validated (possibly audited) params: ``scale``, the base model's seeds on each study
+        dataset, ``study.datasets``, ``study.arm_ids``, ``study.arms``."""
         if isinstance(params, StudySpec):
             return params
         study = params.study
@@ -97,8 +97,10 @@ class StudySpec:
         arm_ids = tuple(str(a) for a in study.arm_ids)
         weighting = {a: str(arms[a]["weighting"]) for a in arm_ids}
         single = {a: str(arms[a]["single"]["task"]) for a in arm_ids if weighting[a] == "single"}
-        return cls(tuple(study.datasets.at(params.scale)), tuple(int(k) for k in params.seeds), arm_ids,
-                   weighting, single)
+        datasets = tuple(study.datasets.at(params.scale))
+        group = catalog.MODELS[study.base_model].group
+        seeds = {ds: tuple(int(k) for k in params.seeds_of(group, ds)) for ds in datasets}
+        return cls(datasets, seeds, arm_ids, weighting, single)
 
 
 @dataclass(frozen=True)
@@ -181,8 +183,8 @@ def study_run_dirs(root: Path, params: Any) -> list[tuple[str, Path]]:
     spec = StudySpec.from_params(params)
     out = []
     for arm in spec.arm_ids:
-        for k in spec.seeds:
-            for ds in spec.datasets:
+        for ds in spec.datasets:
+            for k in spec.seeds[ds]:
                 p = study_paths(arm, k, ds, root)
                 if p.run_dir.is_dir():
                     out.append((f"study/{arm}/seed{k}/{ds}", p.run_dir))
@@ -208,20 +210,21 @@ def collect_seed_results(root: Path, spec: StudySpec, methods: Optional[Sequence
         out[ds] = {}
         for m in methods:
             found, missing = [], []
-            for p in _method_runs(root, ds, m, spec.seeds):
+            for p in _method_runs(root, ds, m, spec.seeds[ds]):
                 if not p.metrics_path.is_file():
                     missing.append(p.seed)
                     continue
                 res = with_derived(read_metrics(p.metrics_path, ds, m.id), f"{ds}/{m.id}/seed{p.seed}")
                 scores = {k: c.mean for k, c in res.scores.items() if k in SCORES}
                 found.append(SeedResult(ds, m.id, p.seed, scores, _sec_per_epoch(p.run_dir), p.run_dir, p.eval_dir))
-            absent = [k for k in spec.seeds if k not in {r.seed for r in found} and k not in missing]
+            absent = [k for k in spec.seeds[ds] if k not in {r.seed for r in found} and k not in missing]
             if missing or (found and absent):
                 log.warning("study %s/%s: no metrics for seed(s) %s; left out", ds, m.id, sorted(missing + absent))
             if found:
                 out[ds][m.id] = found
             else:
-                log.warning("study %s/%s: no runs with metrics (seeds %s); row left out", ds, m.id, list(spec.seeds))
+                log.warning("study %s/%s: no runs with metrics (seeds %s); row left out", ds, m.id,
+                            list(spec.seeds[ds]))
     return out
 
 
@@ -371,7 +374,8 @@ def _cell(r: StudyRow, key: str) -> str:
 def weighting_markdown(rows: Sequence[StudyRow], spec: StudySpec, references: Mapping[str, Mapping[str, float]],
                        notes: Mapping[str, Sequence[str]], dataset_label: Mapping[str, str]) -> str:
     """``weighting.md``: a header explaining Δm, its reference and the seeds; one table per dataset."""
-    seeds = ", ".join(str(k) for k in spec.seeds)
+    seeds = "; ".join(f"{dataset_label.get(ds, ds)}: {', '.join(str(k) for k in spec.seeds[ds])}"
+                      for ds in spec.datasets)
     out = ["# Loss-balancing study (beyond the paper)", "",
            "The compact 15L network trained with each loss-weighting method, everything else equal (the "
            "`compact_15l` recipe with its weighting replaced, params.yaml `study`). The paper's own forms are the "
@@ -383,7 +387,7 @@ def weighting_markdown(rows: Sequence[StudyRow], spec: StudySpec, references: Ma
            "encoders, bottleneck 1 and the task's decoder; for BEVP the whole network, its DE/SS/LS decoders "
            "without a loss; arm `single_<task>`), its own task's metric, mean over its seeds on the same dataset. "
            "The single-task rows are the references (Δm —).",
-           f"- **Seeds**: every cell is the mean ± sample sd (n − 1) over the training seeds (params.yaml `seeds`: "
+           f"- **Seeds**: every cell is the mean ± sample sd (n − 1) over the training seeds (params.yaml `datasets.<ds>.training.seeds`: "
            f"{seeds}); {NO_SD} for the sd of one seed. Δm is computed per seed, then averaged. TM (eq. 6) and MV "
            "(eq. 7) are of each run's four test-set means.",
            "- **s / epoch**: `train_seconds / epochs_run` of each run's `summary.json`, mean ± sd over seeds "

@@ -119,7 +119,7 @@ def train_epoch(run: RunState, epoch: int) -> dict[str, float]:
     # the bar never touches the loader: a second iter() of a persistent-worker loader would
     # draw another shuffling order, so the worker count would change the result
     bar = tqdm(total=n_steps, desc=f"{spec.dataset_id}/{spec.model_id} epoch {epoch + 1}/{run.max_epochs}",
-               disable=not spec.dist.is_main, leave=False)
+               disable=not (spec.dist.is_main and spec.progress), leave=False)
     for step, batch in enumerate(run.train_loader):
         values, frames = train_step(run, batch, step, n_steps)
         acc.add(values, frames)

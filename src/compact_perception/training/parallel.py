@@ -41,7 +41,7 @@ class Job:
 
 
 class JobError(RuntimeError):
-    """A job failed; the message is the job's one-line error, prefixed with its name."""
+    """A job failed; the message is the job's one-line error (it names its file or key)."""
 
 
 def _call(fn: Callable[..., Any], job: Job) -> tuple[str, Any, str | None]:
@@ -65,14 +65,15 @@ def run_jobs(fn: Callable[..., Any], jobs: Sequence[Job], processes: int, desc: 
             for i in order:
                 _collect(_call(fn, jobs[i]), results, bar)
         else:
-            ctx = mp.get_context("spawn")
-            with ctx.Pool(min(processes, len(jobs))) as pool:
-                try:
-                    for out in pool.imap_unordered(_Caller(fn), [jobs[i] for i in order]):
-                        _collect(out, results, bar)
-                except BaseException:
-                    pool.terminate()
-                    raise
+            pool = mp.get_context("spawn").Pool(min(processes, len(jobs)))
+            try:
+                for out in pool.imap_unordered(_Caller(fn), [jobs[i] for i in order]):
+                    _collect(out, results, bar)
+            except BaseException:
+                pool.terminate()
+                raise
+            pool.close()  # the workers exit normally (their exit handlers run: the params audit)
+            pool.join()
     finally:
         bar.close()
     return [results[j.name] for j in jobs]
@@ -90,8 +91,9 @@ class _Caller:
 
 def _collect(out: tuple[str, Any, str | None], results: dict[str, Any], bar: Any) -> None:
     name, value, error = out
-    if error is not None:
-        raise JobError(f"{name}: {error}")
+    if error is not None:  # the message names its file or key; the log names the run
+        log.error("%s failed", name)
+        raise JobError(error)
     results[name] = value
     bar.update()
     log.info("finished %s (%d done)", name, len(results))

@@ -61,6 +61,7 @@ class RunSpec:
     dtype: torch.dtype
     stop_after_epochs: Optional[int]   # end the process after this many epochs of this call (tests)
     export_onnx: bool
+    progress: bool = True              # a per-step progress bar (off in a stage's worker processes)
 
 
 @dataclass

@@ -59,12 +59,18 @@ from .state import RunPaths, RunSpec, RunState
 log = logging.getLogger(__name__)
 
 __all__ = ["train_run", "run_seed", "run_digest", "cache_fingerprint", "seed_everything", "make_optimizer",
-           "selection_score"]
+           "selection_score", "STOP_PLATEAU", "STOP_CAP"]
+
+#: ``summary.json``'s ``stop_reason``: early stopping ended the run (``train.early_stop_patience``
+#: epochs without a new best validation score: learning stopped) ...
+STOP_PLATEAU = "plateau"
+#: ... or the epoch cap did (``datasets.<ds>.training.max_epochs`` or the recipe's).
+STOP_CAP = "max_epochs"
 
 
 def run_seed(params: Params, dataset_id: str, seed: int) -> int:
     """RNG seed of one run, derived from ``params.seed``, the dataset and the run's training seed
-    ``seed`` (one of ``params.seeds``; not read here, so adding a seed reruns no other run). It
+    ``seed`` (one of ``params.seeds_of(group, dataset)``; adding a seed changes no other run). It
     does not depend on the model: at one seed every model of the same network starts from the same
     initial weights and sees the same batches (common random numbers), so the paired comparisons
     of the claims and the study compare training methods, not initialisations."""
@@ -97,13 +103,15 @@ def run_digest(params: Params, dataset_id: str, model_id: str, seed: int, cache_
     It covers the source code (:func:`~compact_perception.training.provenance.source_fingerprint`),
     the torch version, ``scale``, the run's seed, every ``train`` param except the recipes (the
     run's own merged recipe is covered whole) and the settings that cannot change a result
-    (``num_workers``, ``device``), the training and validation data, and the number of processes.
+    (``num_workers``, ``parallel_runs``, ``device``), the run's epoch cap, the training and
+    validation data, and the number of processes.
     """
-    train = params.train.model_dump(exclude={"models", "recipe", "num_workers", "device"})
+    recipe = recipe or params.train.models[model_id]
+    train = params.train.model_dump(exclude={"models", "recipe", "num_workers", "parallel_runs", "device"})
     blob = json.dumps({
         "code": source_fingerprint(), "torch": torch.__version__, "scale": params.scale,
         "dataset": dataset_id, "model": model_id, "seed": seed, "train": train,
-        "recipe": (recipe or params.train.models[model_id]).model_dump(), "data": cache_hash,
+        "recipe": recipe.model_dump(), "max_epochs": params.max_epochs_of(recipe, dataset_id), "data": cache_hash,
         "world_size": world_size,
     }, sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
@@ -176,13 +184,15 @@ def train_run(
     stop_after_epochs: int | None = None,
     dtype: torch.dtype = torch.float32,
     export_onnx: bool = True,
+    progress: bool = True,
 ) -> dict:
-    """Train ``model_id`` on ``dataset_id`` with training seed ``seed`` (one of ``params.seeds``)
+    """Train ``model_id`` on ``dataset_id`` with training seed ``seed`` (one of ``params.seeds_of``)
     from ``cache_dir`` into ``out_dir``. ``recipe`` (default ``train.models.<model_id>``) and
     ``recipe_key``, its params key for messages, let the study train one network with other recipes.
 
     ``export_onnx`` writes a compact network's best checkpoint as ``model.onnx`` too (issue 15);
-    the study turns it off, its arms being comparisons, not deployable models.
+    the study turns it off, its arms being comparisons, not deployable models. ``progress``: a
+    per-step progress bar (off in a stage's worker processes, :mod:`.parallel`, which log epochs).
 
     ``stop_after_epochs`` ends the process after that many epochs of this call without
     writing the summary (it simulates an interruption, for tests). A failure to write a
@@ -203,7 +213,8 @@ def train_run(
     digest = run_digest(params, dataset_id, model_id, rng_seed, cache_fingerprint(cache_dir), dist_.world_size,
                         recipe)
     spec = RunSpec(params, dataset_id, model_id, recipe, cache_dir, RunPaths.under(Path(out_dir)), device, dist_,
-                   rng_seed, digest, per_rank_batch, len(meta["seg_classes"]), dtype, stop_after_epochs, export_onnx)
+                   rng_seed, digest, per_rank_batch, len(meta["seg_classes"]), dtype, stop_after_epochs, export_onnx,
+                   progress)
     try:
         return _train(spec)
     except InterruptedError:  # stop_after_epochs (an OSError subclass): not a write failure
@@ -244,11 +255,11 @@ def _setup(spec: RunSpec) -> RunState:
     weighting = build_weighting(recipe, model.tasks, model, plateau_patience=tp.plateau_patience,
                                 plateau_factor=tp.plateau_factor)
     optimizer = make_optimizer(recipe, model.parameters())
-    max_epochs = (recipe.max_epochs or tp.max_epochs).at(spec.params.scale)
+    max_epochs = spec.params.max_epochs_of(recipe, spec.dataset_id)
     plateau = Plateau(tp.plateau_patience, tp.plateau_factor, recipe.lr_min, recipe.plateau_rule,
                       tp.plateau_threshold)
     de_factor = de_loss_factor(recipe.de_loss) if recipe.de_loss is not None else 1.0
-    stopper = EarlyStop(tp.early_stop_patience)
+    stopper = EarlyStop(tp.early_stop_patience.at(spec.params.scale))
     precision = resolve_precision(tp.precision, spec.device)
     scaler = make_grad_scaler(spec.device, precision)
     forward = maybe_compile(model, tp.compile)
@@ -361,6 +372,8 @@ def _finish(run: RunState) -> dict:
         "dataset": spec.dataset_id, "model": spec.model_id, "rng_seed": spec.seed, "best_epoch": run.best_epoch,
         "best_val_score": run.best_score, "untrained_val_score": run.untrained_score,
         "epochs_run": len(run.history), "max_epochs": run.max_epochs, "stopped_early": run.stopped_early,
+        # why it ended (section IV-D): validation stopped improving, or the safety cap
+        "stop_reason": STOP_PLATEAU if run.stopped_early else STOP_CAP,
         "train_seconds": round(run.elapsed(), 2),
         "params": int(sum(p.numel() for p in run.model.parameters())), "world_size": spec.dist.world_size,
         "final_weights": {k: v for k, v in (run.history[-1] if run.history else {}).items() if k.startswith("w_")},
