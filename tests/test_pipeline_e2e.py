@@ -1,12 +1,14 @@
 """The whole pipeline, end to end, with `dvc repro` at a tiny scale in a temporary copy.
 
 One module-scoped run (every dataset and model) serves several checks:
-- every stage runs; every Table II cell and figure exists; table numbers equal metrics files;
+- every stage runs; every Table II cell and figure exists, the floor rows too; table numbers
+  equal metrics files; every run's summary says why it stopped;
 - a second `dvc repro` does nothing;
 - a parameter only dataset C uses changes only C's first stage; a preprocessing parameter
   changes preprocessing and nothing before it;
-- changing one MGN parameter retrains and re-evaluates only the MGN runs, then the report; one
-  study arm's parameter reruns only that arm's stages and the report;
+- changing one MGN parameter reruns the train and evaluate stages, which retrain only the MGN
+  runs (every other run is complete for its digest), then the report; one study arm's parameter
+  retrains only that arm's runs;
 - a training stage killed mid-run continues from its last finished epoch;
 - every params key a stage reads is one of the stage's ``params:`` in dvc.yaml;
 - the README's experiment command works from a fresh shell (the venv not on PATH);
@@ -35,21 +37,22 @@ COMPACT_MODEL_IDS = compact_model_ids()
 pytestmark = pytest.mark.slow
 
 # The tiny copy runs one simulated set and the nuScenes path (dvc.yaml's lists are cut to
-# these, see `pipeline`), every model, two seeds: the code paths of the full run at ~1/2 its stages.
+# these, see `pipeline`), every model, two seeds, the study on set A: the code paths of the full run.
 DATASETS = ("A", "nuscenes")
 SEEDS = (0, 1)           # the compact models'
 BASELINE_SEEDS = (0,)
 MODELS = model_ids()
 # The study's arms in the copy: a loss-based method, a gradient-surgery one, one single-task net.
 STUDY_ARMS = ("uw", "pcgrad", "single_de")
+SCALES = ("default", "full", "paper")
 
 
 def seeds_of(model: str) -> tuple[int, ...]:
     return SEEDS if model in COMPACT_MODEL_IDS else BASELINE_SEEDS
 
 
-def train_stage(ds: str, model: str, seed: int) -> str:
-    return f"{'train' if model in COMPACT_MODEL_IDS else 'train_baseline'}@{ds}-{model}-{seed}"
+def every(value) -> dict:
+    return {s: value for s in SCALES}
 ALL_TASKS = {"mae_de", "iou_ss", "iou_ls", "iou_bevp", "tm", "mv"}
 TASK_KEYS = {
     "compact_1l": ALL_TASKS, "compact_15l": ALL_TASKS, "compact_15l_mgn": ALL_TASKS,
@@ -64,23 +67,28 @@ ARM_KEYS = {"single_de": {"mae_de"}, "single_ss": {"iou_ss"}, "single_ls": {"iou
 
 def tiny(params: dict) -> dict:
     """Shrink every scale knob so the whole pipeline runs in a few minutes on 2 cores."""
-    params["world"]["resolution"] = {"default": 32, "paper": 128}
+    params["world"]["resolution"] = every(32)
     params["world"]["lidar"]["horizontal_samples"] = 256
     params["world"]["frames_per_episode"] = 2
     params["world"]["workers"] = 1
     params["sim_ids"] = ["A"]                # the matrices' id lists (dvc.yaml reads them from params)
     params["dataset_ids"] = list(DATASETS)
-    params["seeds"] = list(SEEDS)
-    params["baseline_seeds"] = list(BASELINE_SEEDS)
+    params["baseline_seeds"] = every(list(BASELINE_SEEDS))
     for ds in ("A", "B", "C"):
-        params["datasets"][ds]["frames"]["default"] = 10   # 3 / 2 / 5 frames at the default 3:2:5
+        params["datasets"][ds]["frames"]["default"] = 10   # 3 / 2 / 5 frames at 3:2:5
+        params["datasets"][ds]["split_ratio"]["default"] = {"train": 3, "val": 2, "test": 5}
     params["datasets"]["nuscenes"]["sim_scenes"]["default"] = 5
     params["datasets"]["nuscenes"]["sim_samples_per_scene"] = 2
+    for ds in params["datasets"].values():
+        ds["training"] = {"seeds": every(list(SEEDS)), "max_epochs": every(2)}
+    for recipe in params["train"]["models"].values():
+        if "max_epochs" in recipe:
+            recipe["max_epochs"] = every(2)
     params["preprocess"]["workers"] = 1
-    params["train"]["max_epochs"]["default"] = 2
     params["train"]["batch_size"] = 2
     params["train"]["num_workers"] = 0
     params["benchmark"] = {"warmup": 1, "runs": 3}
+    params["study"]["datasets"]["default"] = ["A"]
     params["study"]["arm_ids"] = list(STUDY_ARMS)
     params["study"]["arms"] = {arm: params["study"]["arms"][arm] for arm in STUDY_ARMS}
     return params
@@ -149,13 +157,17 @@ def test_every_stage_ran_and_outputs_exist(pipeline):
     repo, env, log = pipeline
     stages = ran_stages(log)
     for ds in DATASETS:
+        assert {f"train@{ds}", f"evaluate@{ds}"} <= stages
+        for floor in ("floor_pixel", "floor_global"):
+            metrics = json.loads((repo / "results" / ds / floor / "metrics.json").read_text())
+            assert {key for key in metrics if key in ALL_TASKS} == ALL_TASKS, (ds, floor)
         for m in MODELS:
-            assert f"evaluate@{ds}-{m}" in stages
             for k in seeds_of(m):
-                assert train_stage(ds, m, k) in stages
                 metrics = json.loads((repo / "results" / ds / m / f"seed{k}" / "metrics.json").read_text())
                 assert {key for key in metrics if key in ALL_TASKS} == TASK_KEYS[m], (ds, m, k)
-                assert json.loads((repo / "runs" / ds / m / f"seed{k}" / "summary.json").read_text())["epochs_run"]
+                assert set(metrics["floor_margin"]) >= TASK_KEYS[m] - {"mv"}, (ds, m, k)
+                summary = json.loads((repo / "runs" / ds / m / f"seed{k}" / "summary.json").read_text())
+                assert summary["epochs_run"] and summary["stop_reason"] in ("plateau", "max_epochs")
     for ds in ("A",):
         assert f"generate@{ds}" in stages and (repo / "data/raw" / ds / "manifest.json").is_file()
         assert (repo / "reports/figures" / f"world_{ds}.png").is_file()
@@ -177,8 +189,7 @@ def test_every_stage_ran_and_outputs_exist(pipeline):
     assert "simulated nuScenes-format" in (repo / "reports/index.md").read_text()
     for arm in STUDY_ARMS:
         for k in SEEDS:
-            assert f"study@{arm}-{k}" in stages
-            metrics = json.loads((repo / "results/study" / arm / f"seed{k}" / "A" / "metrics.json").read_text())
+            metrics = json.loads((repo / "results/A/study" / arm / f"seed{k}" / "metrics.json").read_text())
             assert {key for key in metrics if key in ALL_TASKS} == ARM_KEYS.get(arm, ALL_TASKS), (arm, k)
 
 
@@ -198,6 +209,8 @@ def test_table_numbers_equal_metrics_files(pipeline):
             assert float(row[f"{key}_mean"]) == pytest.approx(expected, abs=1e-9), (ds, model, key)
             checked += 1
     assert checked == len(DATASETS) * (4 * 4 + 2 + 1 + 1)
+    floors = [row for row in rows if row["row_id"] in ("floor_pixel", "floor_global")]
+    assert len(floors) == 2 * len(DATASETS)
 
 
 def test_second_repro_does_nothing(pipeline):
@@ -219,29 +232,36 @@ def test_parameter_changes_touch_only_their_stages(pipeline):
     assert changed_stages(repo, env) == set()
 
 
-def test_mgn_parameter_reruns_only_mgn_runs_and_report(pipeline):
+def retrained(log: str) -> set[str]:
+    """The runs a train stage trained (the others are complete for their digest: skipped)."""
+    done = set(re.findall(r"(\S+): already complete for this code, params and data", log))
+    finished = set(re.findall(r"finished (\S+) \(", log))
+    return {name for name in finished if not any(d.endswith(name) for d in done)}
+
+
+def test_mgn_parameter_retrains_only_mgn_runs(pipeline):
     repo, env, _ = pipeline
     set_param(repo, ("train", "models", "compact_15l_mgn", "mgn", "alpha"), 1.2)
     log = run(["dvc", "repro"], repo, env)
-    expected = ({f"train@{ds}-compact_15l_mgn-{k}" for ds in DATASETS for k in SEEDS}
-                | {f"evaluate@{ds}-compact_15l_mgn" for ds in DATASETS} | {"report"})
-    assert ran_stages(log) == expected
+    assert ran_stages(log) == {f"train@{ds}" for ds in DATASETS} | {f"evaluate@{ds}" for ds in DATASETS} | {"report"}
+    assert retrained(log) == {f"{ds}/compact_15l_mgn/seed{k}" for ds in DATASETS for k in SEEDS}
 
 
-def test_study_arm_parameter_reruns_only_that_arm_and_report(pipeline):
+def test_study_arm_parameter_retrains_only_that_arm(pipeline):
     repo, env, _ = pipeline
     set_param(repo, ("study", "arms", "uw", "uw", "lr"), 0.01)
     log = run(["dvc", "repro"], repo, env)
-    assert ran_stages(log) == {f"study@uw-{k}" for k in SEEDS} | {"report"}
+    assert {"train@A", "evaluate@A", "report"} <= ran_stages(log)
+    assert retrained(log) == {f"A/study/uw/seed{k}" for k in SEEDS}
 
 
 def test_killed_training_resumes_from_last_epoch(pipeline):
     repo, env, _ = pipeline
     set_param(repo, ("train", "models", "compact_1l", "lr"), 0.05)
-    set_param(repo, ("train", "models", "compact_1l", "max_epochs"), {"default": 4, "paper": 4})
+    set_param(repo, ("train", "models", "compact_1l", "max_epochs"), every(4))
     last = repo / "runs/A/compact_1l/seed0/last.pt"
     before = last.stat().st_mtime_ns
-    proc = subprocess.Popen(["dvc", "repro", "train@A-compact_1l-0"], cwd=repo, env=env,
+    proc = subprocess.Popen(["dvc", "repro", "train@A"], cwd=repo, env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     deadline = time.time() + 300
     while time.time() < deadline and (not last.exists() or last.stat().st_mtime_ns == before):
@@ -252,7 +272,7 @@ def test_killed_training_resumes_from_last_epoch(pipeline):
 
     epoch_done = torch.load(last, weights_only=False)["epoch"]
     assert epoch_done < 3, "the run finished before it could be killed"
-    log = run(["dvc", "repro", "train@A-compact_1l-0"], repo, env)
+    log = run(["dvc", "repro", "train@A"], repo, env)
     assert f"resuming after epoch {epoch_done + 1}" in log
     summary = json.loads((repo / "runs/A/compact_1l/seed0/summary.json").read_text())
     assert summary["epochs_run"] == 4
@@ -278,8 +298,6 @@ def test_every_params_key_a_stage_reads_is_declared(pipeline):
     for entry in audit:
         values = [a for a in entry["argv"] if not a.startswith("-")]
         stage = entry["stage"]
-        if stage == "train" and values[1] not in COMPACT_MODEL_IDS:  # the same module, the baselines' stage
-            stage = "train_baseline"
         name = stage + (f"@{'-'.join(values)}" if values else "")
         assert name in declared, f"audited stage {name} not in dvc.yaml"
         seen.add(name)
@@ -302,9 +320,10 @@ def test_readme_experiment_command_works_from_a_fresh_shell(pipeline, root):
     fresh = {k: v for k, v in env.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
     fresh["PATH"] = "/usr/local/bin:/usr/bin:/bin"
     # one target, so that what earlier tests left out of date elsewhere does not run here
-    log = run(["bin/venv", "dvc", "exp", "run", "-S", "train.models.chen_bev.lr=0.0005", "evaluate@A-chen_bev"],
+    log = run(["bin/venv", "dvc", "exp", "run", "-S", "train.models.chen_bev.lr=0.0005", "evaluate@A"],
               repo, fresh)
-    assert ran_stages(log) == {train_stage("A", "chen_bev", k) for k in BASELINE_SEEDS} | {"evaluate@A-chen_bev"}
+    assert {"train@A", "evaluate@A"} <= ran_stages(log)
+    assert retrained(log) >= {f"A/chen_bev/seed{k}" for k in BASELINE_SEEDS}
 
 
 def test_library_code_change_reruns_and_changes_the_result(pipeline):
@@ -318,11 +337,9 @@ def test_library_code_change_reruns_and_changes_the_result(pipeline):
     metrics_py.write_text(text.replace("def iou(", "def _iou_exact(", 1) +
                           "\n\ndef iou(*args, **kwargs):\n    return 0.5 * _iou_exact(*args, **kwargs)\n")
     changed = changed_stages(repo, env)
-    assert {train_stage(ds, m, k) for ds in DATASETS for m in MODELS for k in seeds_of(m)} <= changed
-    assert {f"evaluate@{ds}-{m}" for ds in DATASETS for m in MODELS} <= changed
-    assert {f"study@{arm}-{k}" for arm in STUDY_ARMS for k in SEEDS} <= changed
-    log = run(["dvc", "repro", "evaluate@A-compact_1l"], repo, env)
-    assert {"train@A-compact_1l-0", "train@A-compact_1l-1", "evaluate@A-compact_1l"} <= ran_stages(log)
+    assert {f"train@{ds}" for ds in DATASETS} | {f"evaluate@{ds}" for ds in DATASETS} <= changed
+    log = run(["dvc", "repro", "evaluate@A"], repo, env)
+    assert {"train@A", "evaluate@A"} <= ran_stages(log)
     assert "already complete" not in log
     after = json.loads((repo / "results/A/compact_1l/seed0/metrics.json").read_text())
     assert after["iou_ss"]["mean"] != before["iou_ss"]["mean"]
