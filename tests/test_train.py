@@ -91,6 +91,58 @@ def test_early_stop_after_patience():
     assert [s.step(v) for v in (1.0, 0.5, 0.6, 0.7, 0.8)] == [False, False, False, False, True]
 
 
+def test_early_stop_at_its_edges():
+    """An equal score is no improvement; a new best on the last allowed epoch resets the count;
+    patience 1 stops at the first epoch without a new best; the state survives a round trip."""
+    s = EarlyStop(patience=2)
+    assert [s.step(v) for v in (1.0, 1.0, 1.0)] == [False, False, True]          # equal twice: stop
+    s = EarlyStop(patience=2)
+    assert [s.step(v) for v in (1.0, 1.1, 0.9, 1.2, 1.3)] == [False, False, False, False, True]
+    s = EarlyStop(patience=1)
+    assert [s.step(v) for v in (2.0, 1.0, 1.0)] == [False, False, True]
+    s, t = EarlyStop(patience=3), EarlyStop(patience=3)
+    for v in (1.0, 0.8, 0.9):
+        s.step(v)
+    t.load_state_dict(s.state_dict())
+    assert [t.step(v) for v in (0.85, 0.95)] == [False, True] and t.since_best == 3
+
+
+def _scripted_validation(monkeypatch, scores):
+    """Validation returns TM = ``scores[i]`` at its i-th call (the first is the untrained net's)."""
+    from compact_perception.training import train as train_mod
+
+    calls = iter(scores)
+
+    def validate(run):
+        tm = next(calls)
+        return {"mae_de": tm - 3.0, "iou_ss": 0.0, "iou_ls": 0.0, "iou_bevp": 0.0}  # TM = mae + 3
+
+    monkeypatch.setattr(train_mod, "validate", validate)
+
+
+@pytest.mark.parametrize("scores, epochs_run, best_epoch, reason", [
+    # untrained 9; best at epoch 1 (2.0); epochs 2, 3, 4 bring none: patience 3 stops after epoch 4
+    ((9.0, 3.0, 2.0, 2.5, 2.0, 2.7, 1.0), 5, 1, "plateau"),
+    # always improving: the cap (6 epochs) ends it
+    ((9.0, 6.0, 5.0, 4.0, 3.5, 3.2, 3.1), 6, 5, "max_epochs"),
+    # a new best on the last allowed epoch (4) resets the count; the cap ends it at 6
+    ((9.0, 3.0, 2.0, 2.5, 2.6, 1.9, 2.0), 6, 4, "max_epochs"),
+])
+def test_a_run_stops_when_validation_stops_improving(tmp_path, params_dict, monkeypatch, scores, epochs_run,
+                                                     best_epoch, reason):
+    """summary.json records how long the run trained, its best epoch and why it stopped: early
+    stopping (``plateau``, after ``train.early_stop_patience`` epochs without a new best; an equal
+    score is none) or the cap (``max_epochs``)."""
+    params_dict["train"]["early_stop_patience"] = {"default": 3, "full": 3, "paper": 3}
+    params = tiny_params(params_dict, epochs=6)
+    _scripted_validation(monkeypatch, scores)
+    summary = train_run(params, "A", "compact_1l", 0, make_cache(tmp_path / "cache", size=16), tmp_path / "run",
+                        export_onnx=False)
+    assert (summary["epochs_run"], summary["best_epoch"], summary["stop_reason"]) == (epochs_run, best_epoch, reason)
+    assert summary["max_epochs"] == 6
+    assert torch.load(tmp_path / "run" / "best.pt", weights_only=True)["epoch"] == best_epoch
+
+
 def test_selection_score_is_tm_for_four_tasks():
     m = {"mae_de": 0.1, "iou_ss": 0.5, "iou_ls": 0.6, "iou_bevp": 0.7}
     assert selection_score(m) == pytest.approx(0.1 + 0.5 + 0.4 + 0.3)

@@ -1,0 +1,72 @@
+"""Runs side by side (training/parallel.py): the pool returns results in job order, starts the
+longest jobs first, stops at the first failing job with its one-line error, and a run trained in a
+worker process after another run has the same bytes as the same run trained alone."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import yaml
+
+from compact_perception.training.parallel import Job, JobError, run_jobs
+
+from repo_params import cap_epochs, repo_params_dict
+from synthetic import make_cache
+
+
+def _square(x: int) -> int:
+    return x * x
+
+
+def _fail_on(x: int) -> int:
+    if x == 3:
+        raise ValueError("runs/A/m/seed3/last.pt: unreadable checkpoint")
+    return x
+
+
+def test_results_come_back_in_job_order_whatever_the_pool():
+    jobs = [Job(f"j{i}", (i,), cost=c) for i, c in enumerate((1.0, 5.0, 2.0, 5.0))]
+    assert run_jobs(_square, jobs, 1, desc="t") == [0, 1, 4, 9]
+    assert run_jobs(_square, jobs, 2, desc="t") == [0, 1, 4, 9]
+
+
+def test_the_first_failure_is_the_stage_error(caplog):
+    jobs = [Job(f"A/m/seed{i}", (i,)) for i in range(5)]
+    with pytest.raises(JobError, match=r"^runs/A/m/seed3/last\.pt: unreadable checkpoint$"):
+        run_jobs(_fail_on, jobs, 1, desc="t")
+    assert "A/m/seed3 failed" in caplog.text
+
+
+def test_longest_first_keeps_the_order_of_equal_costs(monkeypatch):
+    seen: list[str] = []
+    from compact_perception.training import parallel
+
+    monkeypatch.setattr(parallel, "_call", lambda fn, job: (seen.append(job.name) or (job.name, None, None)))
+    run_jobs(_square, [Job("a", (1,), 1.0), Job("b", (1,), 3.0), Job("c", (1,), 1.0), Job("d", (1,), 3.0)], 1, "t")
+    assert seen == ["b", "d", "a", "c"]
+
+
+@pytest.mark.slow
+def test_a_run_in_a_pool_has_the_bytes_of_the_run_alone(tmp_path):
+    """compact_1l seed 0 trained alone in this process, and in a pool of two worker processes after
+    chen_bev seed 0 (the same worker may run both): best.pt and last.pt's network byte for byte."""
+    import torch
+
+    from pipeline.train import train_one
+
+    d = cap_epochs(repo_params_dict(), 2)
+    d["train"].update(batch_size=2, num_workers=0, device="cpu")
+    params = tmp_path / "params.yaml"
+    params.write_text(yaml.safe_dump(d))
+    cache = str(make_cache(tmp_path / "cache", size=16, counts=(4, 2, 2)))
+    alone = tmp_path / "alone"
+    train_one(str(params), "A", "compact_1l", 0, None, cache, str(alone), True)
+    pooled = tmp_path / "pooled"
+    jobs = [Job("chen", (str(params), "A", "chen_bev", 0, None, cache, str(tmp_path / "chen"), False), cost=2.0),
+            Job("1l", (str(params), "A", "compact_1l", 0, None, cache, str(pooled), False), cost=1.0),
+            Job("15l", (str(params), "A", "compact_15l", 0, None, cache, str(tmp_path / "15l"), False), cost=1.0)]
+    facts = run_jobs(train_one, jobs, 2, desc="pool")
+    assert [f["stop_reason"] for f in facts] == ["max_epochs"] * 3
+    assert (pooled / "best.pt").read_bytes() == (alone / "best.pt").read_bytes()
+    last = [torch.load(Path(p) / "last.pt", weights_only=True)["model"] for p in (alone, pooled)]
+    assert all(torch.equal(last[0][k], last[1][k]) for k in last[0])
