@@ -30,7 +30,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from compact_perception.core.catalog import compact_model_ids, model_ids
+from compact_perception.core.catalog import MODELS as MODEL_INFO, compact_model_ids, metric_of, model_ids
 
 COMPACT_MODEL_IDS = compact_model_ids()
 
@@ -54,13 +54,15 @@ def seeds_of(model: str) -> tuple[int, ...]:
 def every(value) -> dict:
     return {s: value for s in SCALES}
 ALL_TASKS = {"mae_de", "iou_ss", "iou_ls", "iou_bevp", "tm", "mv"}
-TASK_KEYS = {
-    "compact_1l": ALL_TASKS, "compact_15l": ALL_TASKS, "compact_15l_mgn": ALL_TASKS,
-    "compact_15l_mgn_authors": ALL_TASKS,
-    "gradnorm_segnet": {"mae_de", "iou_ss"},
-    "polarnet": {"iou_ls"},
-    "chen_bev": {"iou_bevp"},
-}
+
+
+def task_keys(model: str) -> set[str]:
+    """The metrics.json keys of a model (SPEC 2): its tasks' metrics, TM and MV when it does all four."""
+    keys = {metric_of(t) for t in MODEL_INFO[model].tasks}
+    return keys | {"tm", "mv"} if len(keys) == 4 else keys
+
+
+TASK_KEYS = {m: task_keys(m) for m in model_ids()}
 # A study arm scores all four tasks, a single-task network (arm single_<task>) its own task only.
 ARM_KEYS = {"single_de": {"mae_de"}, "single_ss": {"iou_ss"}, "single_ls": {"iou_ls"}, "single_bevp": {"iou_bevp"}}
 
@@ -208,7 +210,7 @@ def test_table_numbers_equal_metrics_files(pipeline):
             expected = sum(m[key]["mean"] for m in per_seed) / len(per_seed)
             assert float(row[f"{key}_mean"]) == pytest.approx(expected, abs=1e-9), (ds, model, key)
             checked += 1
-    assert checked == len(DATASETS) * (4 * 4 + 2 + 1 + 1)
+    assert checked == len(DATASETS) * sum(len(TASK_KEYS[m] - {"tm", "mv"}) for m in MODELS)
     floors = [row for row in rows if row["row_id"] in ("floor_pixel", "floor_global")]
     assert len(floors) == 2 * len(DATASETS)
 
