@@ -41,9 +41,10 @@ ScaleName = Literal["default", "paper"]
 
 
 class Strict(BaseModel):
-    """Base for every section: unknown keys are rejected, types are strict (no bool/str -> int)."""
+    """Base for every section: unknown keys are rejected, types are strict (no bool/str -> int),
+    and a float must be finite (YAML's ``.inf``/``.nan`` are errors: an infinite lr diverges)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
 
 
 class Scaled(Strict, Generic[T]):
