@@ -118,10 +118,13 @@ class WorldParams(Strict):
     @field_validator("resolution")
     @classmethod
     def _res(cls, v: Scaled[int]) -> Scaled[int]:
+        """What every registered network takes: GradNorm SegNet's five 2x2 poolings need a
+        multiple of 32 (16 px leaves its fifth pooling nothing to pool; models/segnet.py)."""
         for name in ("default", "paper"):
             r = getattr(v, name)
-            if not 16 <= r <= 1024 or r % 16:
-                raise ValueError(f"resolution.{name} must be a multiple of 16 in [16, 1024], got {r}")
+            if not 32 <= r <= 1024 or r % 32:
+                raise ValueError(f"resolution.{name} must be a multiple of 32 in [32, 1024] (GradNorm SegNet's "
+                                 f"five 2x2 poolings), got {r}")
         return v
 
 
