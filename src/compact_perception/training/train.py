@@ -48,8 +48,8 @@ from ..data import make_loader, to_device
 from ..losses import de_loss_factor
 from ..models import build_model
 from ..weighting import build_weighting, network_tasks, weighting_settings
-from .checkpoint import (clear_for_start, discard_unsaved, load_resumable, mark_finished, restore, save_best,
-                         save_last)
+from .checkpoint import (clear_for_start, discard_unsaved, load_resumable, mark_finished, read_checkpoint, restore,
+                         save_best, save_last)
 from .epoch import selection_score, split_scores, train_epoch, validate
 from .precision import make_grad_scaler, maybe_compile, resolve_precision, to_channels_last
 from .provenance import source_fingerprint
@@ -345,7 +345,8 @@ def _export_best(run: RunState) -> dict:
     from ..export import export_onnx
 
     spec = run.spec
-    run.model.load_state_dict(torch.load(spec.paths.best, map_location=spec.device, weights_only=False)["model"])
+    best = read_checkpoint(spec.paths.best, spec.device, f"delete {spec.paths.last} to retrain from scratch")
+    run.model.load_state_dict(best["model"])
     batch = to_device(next(iter(run.val_loader)), spec.device, spec.num_seg_classes)
     one = {k: v[:1] for k, v in batch.items()}
     report = export_onnx(run.model, one, spec.paths.onnx)
