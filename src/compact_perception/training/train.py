@@ -80,13 +80,24 @@ def seed_everything(seed: int) -> None:
 
 
 def cache_fingerprint(cache_dir: Path) -> str:
-    """Content hash of the training and validation cache (decides whether to resume)."""
-    h = hashlib.sha256()
-    for path in sorted(p for p in Path(cache_dir).rglob("*") if p.is_file() and "test" not in p.parts):
-        h.update(str(path.relative_to(cache_dir)).encode())
+    """Content hash of the cache's files outside its ``test/`` split (decides whether to resume).
+    Paths are taken relative to ``cache_dir``, so a cache anywhere (under a folder named ``test``
+    too) hashes the same; a cache with no training or validation file is a :class:`RunError`."""
+    cache_dir, h = Path(cache_dir), hashlib.sha256()
+    splits: set[str] = set()
+    for path in sorted(p for p in cache_dir.rglob("*") if p.is_file()):
+        rel = path.relative_to(cache_dir)
+        if rel.parts[0] == "test":
+            continue
+        splits.add(rel.parts[0])
+        h.update(str(rel).encode())
         with path.open("rb") as fh:
             for chunk in iter(lambda: fh.read(1 << 22), b""):
                 h.update(chunk)
+    missing = [s for s in ("train", "val") if s not in splits]
+    if missing:
+        raise RunError(f"{cache_dir}: no {' or '.join(missing)} files to fingerprint (expected <cache>/train/*.npy "
+                       "and <cache>/val/*.npy)")
     return h.hexdigest()
 
 
