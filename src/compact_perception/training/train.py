@@ -219,6 +219,9 @@ def train_run(
         return _train(spec)
     except InterruptedError:  # stop_after_epochs (an OSError subclass): not a write failure
         raise
+    except RunError:  # a diverged or damaged run: what it saved stays, a run that saved nothing leaves nothing
+        discard_unsaved(spec.paths, dist_)
+        raise
     except OSError as err:  # a full disk, a read-only folder: say which file, leave no half-run
         discard_unsaved(spec.paths, dist_)
         raise RunError(f"{err.filename or spec.paths.out_dir}: could not write the run ({err.strerror or err})") \
