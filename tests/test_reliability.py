@@ -23,8 +23,10 @@ import yaml
 from compact_perception.core.config import ParamsError, load_params, parse_params
 from compact_perception.core.errors import RunError
 
+import authors_fixture as fx
 from repo_params import repo_params_dict
 from synthetic import make_cache
+from test_authors import copy, release, stage_error, write_params  # noqa: F401 (fixtures)
 from test_errors import _eval_tree, _exit_message, _files
 
 MODEL = "compact_1l"
@@ -304,3 +306,25 @@ def test_a_merge_key_and_the_same_key_in_other_mappings_are_not_duplicates():
     text = "base: &b {lr: 0.1, momentum: 0.9}\nmodel:\n  <<: *b\n  lr: 0.2\nother: {lr: 0.3}\n"
     assert yaml.load(text, Loader=UniqueKeyLoader) == {
         "base": {"lr": 0.1, "momentum": 0.9}, "model": {"lr": 0.2, "momentum": 0.9}, "other": {"lr": 0.3}}
+
+
+# ----------------------------------------------------------------------------- what held and must keep holding
+@pytest.mark.parametrize("entry", ["../../etc/passwd", "/etc/passwd"])
+def test_a_data_info_entry_outside_its_frame_folder_is_rejected(copy, tmp_path, entry):
+    info = fx.set_info(copy, "Va2", val_idx=[entry])
+    msg = stage_error("preprocess", write_params(repo_params_dict(), tmp_path, copy), tmp_path)
+    assert msg.startswith(f"error: {info}: val_idx[0] is {entry!r}; expected a frame file name"), msg
+
+
+def test_a_python_tag_in_data_info_is_rejected_unrun(copy, tmp_path):
+    marker = tmp_path / "marker"
+    info = fx.set_info(copy, "Va2", val_idx="TAGGED")
+    tag = f"!!python/object/apply:os.system [{shlex.quote('touch ' + str(marker))}]"
+    text = info.read_text().replace("TAGGED", tag)
+    yaml.unsafe_load(text)
+    assert marker.exists(), "the tag does not execute: the test would prove nothing"
+    marker.unlink()
+    fx.replace(info, lambda p: p.write_text(text))
+    msg = stage_error("preprocess", write_params(repo_params_dict(), tmp_path, copy), tmp_path)
+    assert msg.startswith(f"error: {info}: not valid YAML (") and "python/object/apply" in msg, msg
+    assert not marker.exists()
