@@ -66,7 +66,7 @@ def finite_losses(model: torch.nn.Module, out: dict, batch: dict, de_factor: flo
             raise
         bad = [t for t, v in out.items() if not torch.isfinite(v).all()] or ["/".join(model.tasks)]
         raise NonFinite(f"non-finite {prefix}{bad[0]} loss (nan)") from None
-    if not bool(torch.isfinite(torch.stack([v.detach().float() for v in losses.values()])).all()):
+    if not bool(torch.isfinite(torch.stack([v.detach().double() for v in losses.values()])).all()):
         task, value = next((t, v.item()) for t, v in losses.items() if not math.isfinite(v.item()))
         raise NonFinite(f"non-finite {prefix}{task} loss ({value})")
     return losses
