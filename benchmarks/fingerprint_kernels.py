@@ -43,6 +43,7 @@ import ctypes  # noqa: E402
 import hashlib  # noqa: E402
 import json  # noqa: E402
 import os  # noqa: E402
+import pickle  # noqa: E402
 import platform  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
@@ -190,10 +191,10 @@ def _model(model_id: str, dataset_id: str, weights: Path | None) -> nn.Module:
     torch.manual_seed(0)
     model = build_model(model_id, dataset_id)
     if weights is not None:
-        state = torch.load(weights, map_location="cpu", weights_only=False)
-        try:
+        try:  # weights_only: a crafted checkpoint cannot run code (runs/ can come from a shared DVC cache)
+            state = torch.load(weights, map_location="cpu", weights_only=True)
             model.load_state_dict(state["model"] if isinstance(state, dict) and "model" in state else state)
-        except (RuntimeError, KeyError, TypeError) as err:
+        except (RuntimeError, KeyError, TypeError, EOFError, pickle.UnpicklingError) as err:
             raise SystemExit(f"error: {weights}: expected a training checkpoint of {model_id} "
                              f"({str(err).splitlines()[0]})") from None
         torch.manual_seed(0)  # the same dropout draws as without --weights

@@ -252,7 +252,7 @@ def _ingest(tmp_path: Path, nus_root: tuple[Path, dict]) -> tuple[Path, Path, Pa
     root = tmp_path / "nuscenes"
     shutil.copytree(src, root)
     d = yaml.safe_load(yaml.safe_dump(d))
-    d["world"]["resolution"]["default"] = 16
+    d["world"]["resolution"]["default"] = 32
     d["datasets"]["nuscenes"]["sim_scenes"]["default"] = 5
     d["datasets"]["nuscenes"]["sim_samples_per_scene"] = 2
     d["datasets"]["nuscenes"]["version"] = "v1.0-sim"
@@ -309,7 +309,7 @@ def test_missing_dataroot_stops_ingest(tmp_path, nus_root):
 # ----------------------------------------------------------------------------- a full disk while writing data
 def _tiny_sim_params(tmp_path: Path) -> Path:
     d = repo_params_dict()
-    d["world"]["resolution"]["default"] = 16
+    d["world"]["resolution"]["default"] = 32
     d["world"]["lidar"]["horizontal_samples"] = 64
     d["world"]["frames_per_episode"] = 1
     d["world"]["workers"] = 1

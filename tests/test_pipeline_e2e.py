@@ -272,7 +272,7 @@ def test_killed_training_resumes_from_last_epoch(pipeline):
     proc.wait()
     import torch
 
-    epoch_done = torch.load(last, weights_only=False)["epoch"]
+    epoch_done = torch.load(last, weights_only=True)["epoch"]
     assert epoch_done < 3, "the run finished before it could be killed"
     log = run(["dvc", "repro", "train@A"], repo, env)
     assert f"resuming after epoch {epoch_done + 1}" in log

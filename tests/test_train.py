@@ -157,7 +157,7 @@ def test_interrupted_run_resumes_to_the_same_result(tmp_path, params_dict):
     with pytest.raises(InterruptedError):
         train_run(params, "A", "compact_15l_mgn", 0, cache, tmp_path / "cut", stop_after_epochs=1)
     assert not (tmp_path / "cut" / "summary.json").exists()
-    assert torch.load(tmp_path / "cut" / "last.pt", weights_only=False)["epoch"] == 0
+    assert torch.load(tmp_path / "cut" / "last.pt", weights_only=True)["epoch"] == 0
     resumed = train_run(params, "A", "compact_15l_mgn", 0, cache, tmp_path / "cut")
     assert resumed["epochs_run"] == full["epochs_run"] == 3
     assert resumed["untrained_val_score"] == pytest.approx(full["untrained_val_score"], abs=1e-9)
@@ -226,7 +226,7 @@ def test_single_task_arm_trains_and_scores_a_one_task_network(tmp_path, params_d
     run = tmp_path / "run"
     summary = train_run(params, "A", "compact_15l", 0, cache, run, recipe=recipe, recipe_key="study.arms.single_ls",
                         export_onnx=False)
-    best = torch.load(run / "best.pt", weights_only=False)
+    best = torch.load(run / "best.pt", weights_only=True)
     assert best["tasks"] == ["ls"] and not any(k.startswith(("dec_de", "dec_bevp", "enc_ss")) for k in best["model"])
     assert summary["final_weights"] == {"w_ls": 1.0}
     assert not (run / "model.onnx").exists()

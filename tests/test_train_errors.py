@@ -71,7 +71,7 @@ def test_disk_full_leaves_no_half_written_epoch(tmp_path, params_dict, monkeypat
     if fail_at_save == 1:  # nothing was ever saved: nothing is left
         assert not (run / "live").exists() and not (run / "last.pt").exists()
     else:
-        saved = torch.load(run / "last.pt", weights_only=False)["epoch"]
+        saved = torch.load(run / "last.pt", weights_only=True)["epoch"]
         logged = (run / "live" / "plots" / "metrics" / "lr.tsv").read_text().split()[2::2]
         assert logged == [str(e) for e in range(saved + 1)]
 

@@ -49,9 +49,10 @@ SCALES: tuple[str, ...] = ("default", "full", "paper")
 
 
 class Strict(BaseModel):
-    """Base for every section: unknown keys are rejected, types are strict (no bool/str -> int)."""
+    """Base for every section: unknown keys are rejected, types are strict (no bool/str -> int),
+    and a float must be finite (YAML's ``.inf``/``.nan`` are errors: an infinite lr diverges)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
 
 
 class Scaled(Strict, Generic[T]):
@@ -126,10 +127,13 @@ class WorldParams(Strict):
     @field_validator("resolution")
     @classmethod
     def _res(cls, v: Scaled[int]) -> Scaled[int]:
+        """What every registered network takes: GradNorm SegNet's five 2x2 poolings need a
+        multiple of 32 (16 px leaves its fifth pooling nothing to pool; models/segnet.py)."""
         for name in SCALES:
             r = getattr(v, name)
-            if not 16 <= r <= 1024 or r % 16:
-                raise ValueError(f"resolution.{name} must be a multiple of 16 in [16, 1024], got {r}")
+            if not 32 <= r <= 1024 or r % 32:
+                raise ValueError(f"resolution.{name} must be a multiple of 32 in [32, 1024] (GradNorm SegNet's "
+                                 f"five 2x2 poolings), got {r}")
         return v
 
 
@@ -667,14 +671,37 @@ def parse_params(data: dict, source: str = "params.yaml") -> Params:
         raise ParamsError(_format(err, source, _recipe_place(data))) from None
 
 
+class DuplicateKeyError(yaml.YAMLError):
+    """A mapping of a YAML file names one key twice."""
+
+
+class UniqueKeyLoader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` that rejects a key written twice in one mapping: PyYAML would keep the
+    last value silently, while DVC (ruamel) rejects the file, so ``dvc status`` and the stages
+    would disagree. A merge key (``<<: *anchor``) is not a duplicate of the keys it supplies."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict:
+        seen: set = set()
+        for key_node, _ in node.value:
+            if not isinstance(key_node, yaml.ScalarNode) or key_node.tag == "tag:yaml.org,2002:merge":
+                continue
+            key = self.construct_object(key_node)
+            if key in seen:
+                raise DuplicateKeyError(f"duplicate key {key!r} at line {key_node.start_mark.line + 1}")
+            seen.add(key)
+        return super().construct_mapping(node, deep=deep)
+
+
 def load_params(path: str | Path = "params.yaml") -> Params:
-    """Read and validate params.yaml."""
+    """Read and validate params.yaml (a key written twice in one mapping is an error)."""
     path = Path(path)
     if not path.is_file():
         raise ParamsError(f"{path}: file not found")
     with path.open() as fh:
         try:
-            data = yaml.safe_load(fh)
+            data = yaml.load(fh, Loader=UniqueKeyLoader)
+        except DuplicateKeyError as err:
+            raise ParamsError(f"{path}: {err}") from None
         except yaml.YAMLError as err:
             raise ParamsError(f"{path}: not valid YAML: {_one_line(err)}") from None
     return parse_params(data, str(path))

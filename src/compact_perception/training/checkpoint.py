@@ -1,11 +1,17 @@
 """A run's checkpoints: ``best.pt`` (the network at the best validation score) and ``last.pt``
 (everything needed to resume bit-identically after the last finished epoch), written atomically
 by rank 0, read back on a restart, and what a failed write leaves behind.
+
+Every checkpoint is read with ``weights_only=True`` (tensors and plain containers): ``runs/`` is a
+DVC output that can come from a shared cache or another checkout, and unpickling anything else
+can run code. Checkpoints are written atomically, so one that does not read back is damaged, not
+half-saved: that stops the run naming the file, and nothing is deleted.
 """
 from __future__ import annotations
 
 import errno
 import logging
+import pickle
 import shutil
 from pathlib import Path
 from typing import Any, Optional
@@ -13,13 +19,14 @@ from typing import Any, Optional
 import torch
 
 from ..core import io
+from ..core.errors import RunError
 from .distributed import Dist
 from .state import RunPaths, RunState
 
 log = logging.getLogger(__name__)
 
-__all__ = ["save", "save_best", "save_last", "load_resumable", "restore", "mark_finished", "clear_for_start",
-           "discard_unsaved"]
+__all__ = ["save", "save_best", "save_last", "read_checkpoint", "load_resumable", "restore", "mark_finished",
+           "clear_for_start", "discard_unsaved"]
 
 
 def save(obj: Any, path: Path, final: Path) -> None:
@@ -65,16 +72,36 @@ def save_last(run: RunState, epoch: int) -> None:
     }, run.spec.paths.last)
 
 
+def _reason(err: Exception) -> str:
+    """One short line of why ``torch.load`` refused a file."""
+    lines = [line.strip() for line in str(err).splitlines() if line.strip()]
+    if isinstance(err, pickle.UnpicklingError):  # weights_only refused an object: name it, not torch's advice
+        detail = next((line for line in lines if "GLOBAL" in line), lines[-1] if lines else "")
+        return f"it holds more than tensors and plain data, not loaded: {detail}"[:240]
+    return lines[0].split(". ")[0][:200] if lines else type(err).__name__
+
+
+def read_checkpoint(path: Path, device: torch.device | str = "cpu",
+                    remedy: str = "delete it to retrain from scratch") -> dict:
+    """The checkpoint at ``path``, read with ``weights_only=True``; :class:`RunError` naming the
+    file (and ``remedy``) when it does not read back as a mapping."""
+    try:
+        state = torch.load(path, map_location=device, weights_only=True)
+    except Exception as err:  # torch raises RuntimeError, EOFError, UnpicklingError, ... on damage
+        raise RunError(f"{path}: unreadable checkpoint ({_reason(err)}); {remedy}") from None
+    if not isinstance(state, dict):
+        raise RunError(f"{path}: unreadable checkpoint (a {type(state).__name__}, not a checkpoint); {remedy}")
+    return state
+
+
 def load_resumable(path: Path, digest: str, device: torch.device) -> Optional[dict]:
     """The checkpoint at ``path`` when it belongs to this run (the same ``digest``: code, params,
-    data); ``None`` (start afresh) when there is none, it is unreadable or of another run."""
+    data); ``None`` (start afresh) when there is none or it is of another run. An unreadable one is
+    an error (:func:`read_checkpoint`): it was written atomically, so it is damaged, and starting
+    afresh would delete a finished run's results."""
     if not path.exists():
         return None
-    try:
-        state = torch.load(path, map_location=device, weights_only=False)
-    except Exception as err:  # a checkpoint cut short by a kill: start afresh
-        log.info("%s: unreadable checkpoint (%s); starting afresh", path, err)
-        return None
+    state = read_checkpoint(path, device)
     if state.get("digest") != digest:
         log.info("%s: the checkpoint is of other code, params or data; starting afresh", path.parent)
         return None
@@ -97,14 +124,16 @@ def restore(run: RunState, state: dict) -> None:
 
 def mark_finished(path: Path) -> None:
     """Flag ``last.pt`` as a complete run (a restart then returns its summary)."""
-    state = torch.load(path, map_location="cpu", weights_only=False)
+    state = read_checkpoint(path)
     state["finished"] = True
     _write(state, path)
 
 
 def clear_for_start(paths: RunPaths, resuming: bool) -> None:
     """Rank 0, before the epochs: a fresh start removes the files of any earlier run; the dvclive
-    folder is always removed (it is rebuilt from the checkpoint's history)."""
+    folder and the temporary files of a write killed before its rename (:func:`io.remove_leftovers`)
+    are always removed (the logs are rebuilt from the checkpoint's history)."""
+    io.remove_leftovers(paths.out_dir)
     if not resuming:
         for stale in (paths.last, paths.best, paths.summary):
             stale.unlink(missing_ok=True)

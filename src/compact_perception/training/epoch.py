@@ -1,22 +1,29 @@
 """One epoch of paper section IV-D: the training steps (with the loss weighting's step protocol of
 section III-C, :mod:`compact_perception.weighting`) and the validation pass, each averaged over
 every process's frames.
+
+A run that diverges stops: a training loss that is not finite stops it before that step's update,
+a non-finite validation loss or score before the epoch is recorded or saved, with one line
+naming the run folder, the epoch and the loss (:class:`RunError`); ``last.pt`` stays at the last
+finished epoch.
 """
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import torch
 from tqdm.auto import tqdm
 
 from . import distributed as ddp
+from ..core.errors import RunError
 from ..data import set_epoch, to_device
 from ..losses import scale_de_loss
 from ..metrics import compute_metrics, scores_from_means, total_metric_partial
 from .precision import autocast_context, batch_to_channels_last, float_outputs
 from .state import RunState
 
-__all__ = ["selection_score", "split_scores", "evaluate_split", "train_epoch", "train_step", "validate"]
+__all__ = ["NonFinite", "selection_score", "split_scores", "evaluate_split", "train_epoch", "train_step", "validate"]
 
 
 def selection_score(metrics: dict[str, float]) -> float:
@@ -32,6 +39,37 @@ def split_scores(means: dict[str, float]) -> dict[str, float]:
     """A split's mean scores with TM and MV recomputed from the four means (eq. 6-7, as the
     paper's Table II defines MV; a mean of per-batch MV would not be it)."""
     return {**means, **scores_from_means(means)}
+
+
+class NonFinite(ArithmeticError):
+    """A loss or score that is not a finite number: the run has diverged (e.g. a too large lr)."""
+
+
+def _diverged(run: RunState, err: NonFinite) -> RunError:
+    """The one-line error of a diverged run: its folder, the epoch under way (1-based; the
+    history holds the finished ones) and what was not finite."""
+    when = f"epoch {len(run.history) + 1}" if run.untrained_score is not None else "the untrained network"
+    return RunError(f"{run.spec.paths.out_dir}: {when}: {err}")
+
+
+def finite_losses(model: torch.nn.Module, out: dict, batch: dict, de_factor: float,
+                  split: str = "") -> dict[str, torch.Tensor]:
+    """The model's task losses (section III-B; the DE loss times ``de_factor``), each finite, else
+    :class:`NonFinite` naming it (``non-finite <split> <task> loss (<value>)``). torch's BCE refuses a
+    nan input ("should be between 0 and 1") before any loss exists: that is a nan loss too, of the
+    first task whose output is not finite (Chen et al.'s internal reconstructions: its task)."""
+    prefix = f"{split} " if split else ""
+    try:
+        losses = scale_de_loss(model.compute_losses(out, batch), de_factor)
+    except RuntimeError as err:
+        if "between 0 and 1" not in str(err):
+            raise
+        bad = [t for t, v in out.items() if not torch.isfinite(v).all()] or ["/".join(model.tasks)]
+        raise NonFinite(f"non-finite {prefix}{bad[0]} loss (nan)") from None
+    if not bool(torch.isfinite(torch.stack([v.detach().double() for v in losses.values()])).all()):
+        task, value = next((t, v.item()) for t, v in losses.items() if not math.isfinite(v.item()))
+        raise NonFinite(f"non-finite {prefix}{task} loss ({value})")
+    return losses
 
 
 class _Mean:
@@ -60,7 +98,7 @@ def evaluate_split(model: torch.nn.Module, loader, device: torch.device, spec: d
         for batch in loader:
             batch = to_device(batch, device, spec["num_seg_classes"], dtype=dtype)
             out = model(batch)
-            losses = scale_de_loss(model.compute_losses(out, batch), de_factor)
+            losses = finite_losses(model, out, batch, de_factor, "validation")
             n = next(iter(batch.values())).shape[0]
             values = {f"loss_{k}": v.item() for k, v in losses.items()}
             values.update({k: float(v) for k, v in
@@ -70,11 +108,19 @@ def evaluate_split(model: torch.nn.Module, loader, device: torch.device, spec: d
 
 
 def validate(run: RunState) -> dict[str, float]:
-    """The validation split's mean losses and metrics over every process's frames."""
+    """The validation split's mean losses and metrics over every process's frames; a non-finite
+    loss or selection score stops the run (:class:`RunError`)."""
     spec = run.spec
-    means = evaluate_split(run.model, run.val_loader, spec.device, {"num_seg_classes": spec.num_seg_classes},
-                           spec.dtype, run.de_factor)
-    return ddp.average_scalars(means, spec.dist, len(run.val_loader))
+    try:
+        means = evaluate_split(run.model, run.val_loader, spec.device, {"num_seg_classes": spec.num_seg_classes},
+                               spec.dtype, run.de_factor)
+    except NonFinite as err:
+        raise _diverged(run, err) from None
+    means = ddp.average_scalars(means, spec.dist, len(run.val_loader))
+    score = selection_score(split_scores(means))
+    if not math.isfinite(score):
+        raise _diverged(run, NonFinite(f"non-finite validation score ({score})"))
+    return means
 
 
 def train_step(run: RunState, batch: dict, step: int, n_steps: int) -> tuple[dict[str, float], int]:
@@ -88,10 +134,12 @@ def train_step(run: RunState, batch: dict, step: int, n_steps: int) -> tuple[dic
         batch = batch_to_channels_last(batch)
     with autocast_context(spec.device, run.precision):  # the forward only: losses in float32 (BCE clamps)
         out = float_outputs(run.forward(batch))
-    losses = scale_de_loss(run.model.compute_losses(out, batch), run.de_factor)
+    losses = finite_losses(run.model, out, batch, run.de_factor)  # before any update: last.pt stays good
     weighting.grad_scale = scaler.get_scale() if scaler.is_enabled() else 1.0
     weighting.before_backward(step, n_steps, losses, run.model)
     total = weighting.backward(losses, run.model, scaler.scale)     # with the step's weights w(t)
+    if not math.isfinite(total.item()):  # finite losses, non-finite weights (a diverged weighting)
+        raise NonFinite(f"non-finite total loss ({total.item()})")
     weighting.after_backward()                                      # w(t+1), if the step updated them
     if spec.dist.enabled:  # each rank's update saw its own batch: agree on the mean weights
         weighting.set_weights(ddp.average_tensor(weighting.w, spec.dist))
@@ -121,7 +169,11 @@ def train_epoch(run: RunState, epoch: int) -> dict[str, float]:
     bar = tqdm(total=n_steps, desc=f"{spec.dataset_id}/{spec.model_id} epoch {epoch + 1}/{run.max_epochs}",
                disable=not (spec.dist.is_main and spec.progress), leave=False)
     for step, batch in enumerate(run.train_loader):
-        values, frames = train_step(run, batch, step, n_steps)
+        try:
+            values, frames = train_step(run, batch, step, n_steps)
+        except NonFinite as err:
+            bar.close()
+            raise _diverged(run, err) from None
         acc.add(values, frames)
         bar.set_postfix(loss=f"{values['loss_total']:.3f}", refresh=False)
         bar.update()

@@ -48,8 +48,8 @@ from ..data import make_loader, to_device
 from ..losses import de_loss_factor
 from ..models import build_model
 from ..weighting import build_weighting, network_tasks, weighting_settings
-from .checkpoint import (clear_for_start, discard_unsaved, load_resumable, mark_finished, restore, save_best,
-                         save_last)
+from .checkpoint import (clear_for_start, discard_unsaved, load_resumable, mark_finished, read_checkpoint, restore,
+                         save_best, save_last)
 from .epoch import selection_score, split_scores, train_epoch, validate
 from .precision import make_grad_scaler, maybe_compile, resolve_precision, to_channels_last
 from .provenance import source_fingerprint
@@ -86,13 +86,24 @@ def seed_everything(seed: int) -> None:
 
 
 def cache_fingerprint(cache_dir: Path) -> str:
-    """Content hash of the training and validation cache (decides whether to resume)."""
-    h = hashlib.sha256()
-    for path in sorted(p for p in Path(cache_dir).rglob("*") if p.is_file() and "test" not in p.parts):
-        h.update(str(path.relative_to(cache_dir)).encode())
+    """Content hash of the cache's files outside its ``test/`` split (decides whether to resume).
+    Paths are taken relative to ``cache_dir``, so a cache anywhere (under a folder named ``test``
+    too) hashes the same; a cache with no training or validation file is a :class:`RunError`."""
+    cache_dir, h = Path(cache_dir), hashlib.sha256()
+    splits: set[str] = set()
+    for path in sorted(p for p in cache_dir.rglob("*") if p.is_file()):
+        rel = path.relative_to(cache_dir)
+        if rel.parts[0] == "test":
+            continue
+        splits.add(rel.parts[0])
+        h.update(str(rel).encode())
         with path.open("rb") as fh:
             for chunk in iter(lambda: fh.read(1 << 22), b""):
                 h.update(chunk)
+    missing = [s for s in ("train", "val") if s not in splits]
+    if missing:
+        raise RunError(f"{cache_dir}: no {' or '.join(missing)} files to fingerprint (expected <cache>/train/*.npy "
+                       "and <cache>/val/*.npy)")
     return h.hexdigest()
 
 
@@ -218,6 +229,9 @@ def train_run(
     try:
         return _train(spec)
     except InterruptedError:  # stop_after_epochs (an OSError subclass): not a write failure
+        raise
+    except RunError:  # a diverged or damaged run: what it saved stays, a run that saved nothing leaves nothing
+        discard_unsaved(spec.paths, dist_)
         raise
     except OSError as err:  # a full disk, a read-only folder: say which file, leave no half-run
         discard_unsaved(spec.paths, dist_)
@@ -356,7 +370,8 @@ def _export_best(run: RunState) -> dict:
     from ..export import export_onnx
 
     spec = run.spec
-    run.model.load_state_dict(torch.load(spec.paths.best, map_location=spec.device, weights_only=False)["model"])
+    best = read_checkpoint(spec.paths.best, spec.device, f"delete {spec.paths.last} to retrain from scratch")
+    run.model.load_state_dict(best["model"])
     batch = to_device(next(iter(run.val_loader)), spec.device, spec.num_seg_classes)
     one = {k: v[:1] for k, v in batch.items()}
     report = export_onnx(run.model, one, spec.paths.onnx)
