@@ -18,7 +18,7 @@ from typing import Mapping, Optional
 from compact_perception.core.cache import CacheError, read_split
 from compact_perception.core.catalog import dataset_ids
 from compact_perception.core.errors import RunError
-from compact_perception.evaluate import best_checkpoint, evaluate_floors, evaluate_run
+from compact_perception.evaluate import evaluate_floors, evaluate_run, read_best
 from compact_perception.plan import dataset_runs
 from compact_perception.training.parallel import Job, JobError, run_jobs
 
@@ -46,8 +46,8 @@ def main(argv: list[str] | None = None) -> None:
         runs = dataset_runs(params, args.dataset)
         for split in ("train", "test"):
             read_split(cache, split)
-        for r in runs:
-            best_checkpoint(r.dataset, r.model, r.paths.run_dir)
+        for r in runs:  # every checkpoint exists and reads safely
+            read_best(r.dataset, r.model, r.paths.run_dir)
         floor = evaluate_floors(args.dataset, cache, ".",
                                 save_predictions=params.evaluate.save_predictions, num_threads=params.train.num_threads)
         jobs = [Job(r.name, (args.params, r.dataset, r.model, str(r.paths.run_dir), str(r.paths.metrics_path),

@@ -24,7 +24,7 @@ from compact_perception.core.config import ParamsError, load_params, parse_param
 from compact_perception.core.errors import RunError
 
 import authors_fixture as fx
-from repo_params import repo_params_dict
+from repo_params import cap_epochs, repo_params_dict
 from synthetic import make_cache
 from test_authors import copy, release, stage_error, write_params  # noqa: F401 (fixtures)
 from test_errors import _eval_tree, _exit_message, _files
@@ -34,12 +34,10 @@ MODEL = "compact_1l"
 
 def _tiny(d: dict, epochs: int = 2) -> dict:
     """Params of a run of a few seconds (2 epochs, batch 2, one process, CPU)."""
-    d["train"]["max_epochs"] = {"default": epochs, "paper": epochs}
+    cap_epochs(d, epochs)
     d["train"]["batch_size"] = 2
     d["train"]["num_workers"] = 0
     d["train"]["device"] = "cpu"
-    for recipe in d["train"]["models"].values():
-        recipe.pop("max_epochs", None)
     return d
 
 
@@ -124,7 +122,7 @@ def test_crafted_best_pt_does_not_run_code_in_evaluation(tmp_path, monkeypatch):
     _crafted(best, marker, epoch=0)
     before = _files(root)
     monkeypatch.chdir(root)
-    msg = _exit_message(main, ["--dataset", "A", "--model", MODEL, "--params", "params.yaml"])
+    msg = _exit_message(main, ["--dataset", "A", "--params", "params.yaml"])
     assert msg.startswith(f"error: runs/A/{MODEL}/seed0/best.pt: not a checkpoint of {MODEL}"), msg
     assert not marker.exists()
     assert _files(root) == before

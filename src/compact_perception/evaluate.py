@@ -157,27 +157,32 @@ def _compact_prediction(task: str, pred: torch.Tensor) -> np.ndarray:
     return (p > 0.5).numpy().astype(np.uint8)
 
 
-def best_checkpoint(dataset_id: str, model_id: str, run_dir: Path) -> Path:
-    """``run_dir/best.pt``; FileNotFoundError naming it where the run has not written one."""
+def read_best(dataset_id: str, model_id: str, run_dir: Path) -> dict:
+    """``run_dir/best.pt`` read with ``weights_only=True`` (tensors and plain containers only, so a
+    crafted file cannot run code: ``runs/`` can come from a shared DVC cache). FileNotFoundError
+    naming it where the run wrote none; RunError where it is not a checkpoint."""
     best = Path(run_dir) / "best.pt"
     if not best.is_file():
         raise FileNotFoundError(f"{best}: no best checkpoint; has the training of {dataset_id}/{model_id} finished?")
-    return best
+    try:
+        checkpoint = torch.load(best, map_location="cpu", weights_only=True)
+    except (RuntimeError, ValueError, AttributeError, pickle.UnpicklingError, EOFError) as err:
+        raise RunError(f"{best}: not a checkpoint of {model_id} on {dataset_id} "
+                       f"({' '.join(str(err).split())[:200]})") from None
+    if not isinstance(checkpoint, dict) or "model" not in checkpoint:
+        raise RunError(f"{best}: not a checkpoint of {model_id} on {dataset_id} (no 'model' state)")
+    return checkpoint
 
 
 def load_trained(dataset_id: str, model_id: str, run_dir: Path) -> tuple[torch.nn.Module, int]:
-    """The network of ``run_dir/best.pt`` (built for the tasks it was trained for), in eval mode,
-    and the epoch it was saved at.
-
-    The checkpoint is read with ``weights_only=True``: tensors and plain containers only, so a
-    crafted file cannot run code (``runs/`` can come from a shared DVC cache)."""
-    best = best_checkpoint(dataset_id, model_id, run_dir)
+    """The network of ``run_dir/best.pt`` (:func:`read_best`; built for the tasks it was trained
+    for), in eval mode, and the epoch it was saved at."""
+    checkpoint = read_best(dataset_id, model_id, run_dir)
     try:
-        checkpoint = torch.load(best, map_location="cpu", weights_only=True)
         model = build_model(model_id, dataset_id, checkpoint.get("tasks"))  # the tasks it was trained for
         model.load_state_dict(checkpoint["model"])
-    except (RuntimeError, KeyError, ValueError, AttributeError, pickle.UnpicklingError, EOFError) as err:
-        raise RunError(f"{best}: not a checkpoint of {model_id} on {dataset_id} "
+    except (RuntimeError, KeyError, ValueError) as err:
+        raise RunError(f"{Path(run_dir) / 'best.pt'}: not a checkpoint of {model_id} on {dataset_id} "
                        f"({' '.join(str(err).split())[:200]})") from None
     return model.eval(), int(checkpoint.get("epoch", -1))
 
