@@ -22,10 +22,10 @@ repro: $(STAMP)
 
 ## Run the test suite (unit, integration and the tiny end-to-end dvc repro).
 test: $(STAMP)
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n 2 --dist loadfile
 
 test-fast: $(STAMP)
-	$(PY) -m pytest -q -m "not slow"
+	$(PY) -m pytest -q -n 2 --dist loadfile -m "not slow"
 
 ## Print the speed/memory figures of every benchmark script.
 bench: $(STAMP)

@@ -171,6 +171,7 @@ def test_towns_differ(params_dict):
     assert not np.array_equal(r1["sem_f"], r2["sem_f"])
 
 
+@pytest.mark.slow
 def test_all_classes_appear_over_towns(params_dict):
     p = _params(params_dict, res=32, samples=256)
     seen = np.zeros(23, bool)
