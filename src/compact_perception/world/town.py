@@ -113,27 +113,14 @@ def _hash_seed(name: str) -> int:
     return zlib.crc32(name.encode()) & 0x7FFFFFFF
 
 
-@functools.lru_cache(maxsize=8)
-def build_town(name: str, cell_m: float = 0.25) -> Town:
-    """Build (and cache) the static geometry of ``name`` (town01..town05)."""
-    if name not in STYLES:
-        raise ValueError(f"unknown town {name!r}; known: {sorted(STYLES)}")
-    st = STYLES[name]
-    rng = np.random.default_rng(_hash_seed(name))
-    road_w = 2 * st.lanes * st.lane_w
-    margin = 30.0
-    pitch = st.block_m + road_w
-    road_pos = margin + road_w / 2 + np.arange(st.n_blocks + 1) * pitch
-    size = float(road_pos[-1] + road_w / 2 + margin)
-    b = _Builder(size, cell_m, rng)
-    hw = road_w / 2
-    # ---------------------------------------------------------------- roads + markings
+def _paint_roads(b: "_Builder", st: TownStyle, road_pos: np.ndarray, hw: float, size: float) -> None:
+    """The road grid: asphalt, centre and lane lines (dashed between lanes), edge lines and the
+    zebra crossings before each intersection, painted into the ground and marking grids."""
     for c in road_pos:
         b.paint(0, size, c - hw, c + hw, TAG["road"])
         b.paint(c - hw, c + hw, 0, size, TAG["road"])
         b.paint(0, size, c - hw, c + hw, MARK_ROAD, grid=b.marking)
         b.paint(c - hw, c + hw, 0, size, MARK_ROAD, grid=b.marking)
-    inter = [(float(cx), float(cy)) for cx in road_pos for cy in road_pos]
     lw = 0.25
     for c in road_pos:
         for axis in (0, 1):
@@ -160,7 +147,12 @@ def build_town(name: str, cell_m: float = 0.25) -> Town:
                     for k in np.arange(c - hw + 0.5, c + hw - 0.5, 1.0):
                         r = (z0, z1, k, k + 0.5) if axis == 0 else (k, k + 0.5, z0, z1)
                         b.paint(*r, TAG["road line"])
-    # ---------------------------------------------------------------- blocks
+
+
+def _fill_blocks(b: "_Builder", st: TownStyle, road_pos: np.ndarray, hw: float, size: float,
+                 rng: np.random.Generator) -> list[tuple[float, float]]:
+    """Every block between the roads: river or rail rows, else sidewalk, then a park, a parking
+    lot or buildings, and a wall or fence around it; returns the street lamps' positions."""
     lamps: list[tuple[float, float]] = []
     sw = st.sidewalk_m
     for bi in range(st.n_blocks):
@@ -186,7 +178,13 @@ def build_town(name: str, cell_m: float = 0.25) -> Town:
                 _perimeter(b, ix0, ix1, iy0, iy1, TAG["wall"], 0.3, rng.uniform(2.0, 3.0))
             elif rng.uniform() < st.fences:
                 _perimeter(b, ix0, ix1, iy0, iy1, TAG["fence"], 0.1, rng.uniform(1.2, 1.8))
-    # ---------------------------------------------------------------- intersections: lights and signs
+    return lamps
+
+
+def _place_lights(b: "_Builder", inter: list[tuple[float, float]], hw: float,
+                  rng: np.random.Generator) -> list[dict]:
+    """At every intersection corner a traffic light (pole, head over the road edge, the stop zone
+    of the lanes it controls, one phase per intersection) and, half the time, a sign."""
     lights: list[dict] = []
     for k, (cx, cy) in enumerate(inter):
         phase = int(rng.integers(0, 40))
@@ -212,6 +210,27 @@ def build_town(name: str, cell_m: float = 0.25) -> Town:
                 qx, qy = cx + sx * (hw + 2.2), cy + sy * (hw + 4.5)
                 b.box(qx - 0.06, qy - 0.06, 0, qx + 0.06, qy + 0.06, 2.2, TAG["pole"])
                 b.box(qx - 0.4, qy - 0.05, 2.0, qx + 0.4, qy + 0.05, 2.8, TAG["traffic sign"])
+    return lights
+
+
+@functools.lru_cache(maxsize=8)
+def build_town(name: str, cell_m: float = 0.25) -> Town:
+    """Build (and cache) the static geometry of ``name`` (town01..town05)."""
+    if name not in STYLES:
+        raise ValueError(f"unknown town {name!r}; known: {sorted(STYLES)}")
+    st = STYLES[name]
+    rng = np.random.default_rng(_hash_seed(name))
+    road_w = 2 * st.lanes * st.lane_w
+    margin = 30.0
+    pitch = st.block_m + road_w
+    road_pos = margin + road_w / 2 + np.arange(st.n_blocks + 1) * pitch
+    size = float(road_pos[-1] + road_w / 2 + margin)
+    b = _Builder(size, cell_m, rng)
+    hw = road_w / 2
+    _paint_roads(b, st, road_pos, hw, size)
+    lamps = _fill_blocks(b, st, road_pos, hw, size, rng)
+    inter = [(float(cx), float(cy)) for cx in road_pos for cy in road_pos]
+    lights = _place_lights(b, inter, hw, rng)
     arr = np.array([bx[:6] for bx in b.boxes], dtype=np.float32)
     return Town(
         name=name, style=st, size_m=size, cell_m=cell_m, ground=b.ground, marking=b.marking,
