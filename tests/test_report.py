@@ -49,10 +49,10 @@ ROWS = ["chen_bev", "polarnet", "gradnorm_segnet", "combination", "compact_1l", 
 # ----------------------------------------------------------------------------- paper numbers
 def test_paper_numbers_complete_and_self_consistent() -> None:
     p = load_paper_numbers()
-    assert set(p.table2) == set(catalog.dataset_ids())
-    for ds in catalog.dataset_ids():
+    assert set(p.table2) == {"A", "B", "C", "nuscenes"} <= set(catalog.dataset_ids())   # the paper's sets
+    for ds in p.table2:
         rows = p.table2[ds]
-        assert set(rows) == {paper_row(r) for r in ROW_ORDER}     # every row of the report has its printed row
+        assert set(rows) == {paper_row(r) for r in ROWS}     # every row of the paper's models has its printed row
         # the printed combination TM / MV follow from the printed baseline cells (3-decimal rounding;
         # tests/test_losses_metrics.py checks MV at the printed precision row by row)
         s = scores_from_means({"mae_de": rows["gradnorm_segnet"].value("mae_de"),
@@ -77,12 +77,12 @@ def test_paper_numbers_complete_and_self_consistent() -> None:
 def test_rows_and_columns_derive_from_the_registries(monkeypatch: pytest.MonkeyPatch) -> None:
     """Table rows: the catalog's models by ``table_order``, the combination right after the last
     model that gives it a task; Table II's columns: the task metrics, then TM and MV."""
-    assert ROW_ORDER == tuple(ROWS) and schema.COMBINATION_MODELS == ("chen_bev", "polarnet", "gradnorm_segnet")
+    assert [r for r in ROW_ORDER if r in ROWS] == ROWS and schema.COMBINATION_MODELS == ("chen_bev", "polarnet", "gradnorm_segnet")
     assert schema.TABLE2_COLUMNS == TASK_COLUMNS + ("tm", "mv") and TASK_COLUMNS == catalog.metric_keys()
     assert schema.COLUMN_TEX["iou_bevp"] == "$IoU_{BEVP}$" and schema.COLUMN_TEX["tm"] == "$TM$"
     assert schema.LOWER_IS_BETTER == {"mae_de", "tm", "mv"}
     moved = Registry("model", ordered=True)      # PolarNet's row after every compact model
-    for m in catalog.model_ids():
+    for m in [m for m in catalog.model_ids() if m in ROWS]:   # the paper's models
         info = catalog.MODELS[m]
         moved.register(m)(dataclasses.replace(info, table_order=99) if m == "polarnet" else info)
     monkeypatch.setattr(catalog, "MODELS", moved)
