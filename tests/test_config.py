@@ -195,7 +195,7 @@ def _assert_rejected(params_dict, path, value, fragment):
 @pytest.mark.parametrize(
     "path, value, fragment",
     [
-        (("dataset_ids",), ["A", "D"], r"dataset_ids: .*unknown dataset\(s\) \['D'\]"),
+        (("dataset_ids",), ["A", "no_such_set"], r"dataset_ids: .*unknown dataset\(s\) \['no_such_set'\]"),
         (("sim_ids",), ["A", "A"], r"sim_ids: .*distinct ids"),
         (("model_ids",), ["compact_1l", "resnet"], r"model_ids: .*unknown model\(s\) \['resnet'\]"),
         (("model_ids",), ["compact_1l", "compact_1l"], r"model_ids: .*distinct ids"),

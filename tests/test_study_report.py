@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from compact_perception.core import catalog
 from compact_perception.report.index import build_reports
 from compact_perception.report.study import StudySpec, delta_m, study_methods, write_study_report
 from repo_params import repo_params
@@ -103,7 +104,8 @@ def test_rows_mean_sd_csv_and_figure(tmp_path: Path, caplog: pytest.LogCaptureFi
         out = write_study_report(tmp_path, SPEC, tmp_path / "tables", tmp_path / "figures")
     rows = _rows(out.csv)
     header = out.csv.read_text().splitlines()[0].split(",")
-    metrics = ("mae_de", "iou_ss", "iou_ls", "iou_bevp", "tm", "mv", "dm", "sec_per_epoch")
+    metrics = catalog.metric_keys() + tuple(catalog.SCORES.keys()) + ("dm", "sec_per_epoch")
+    assert metrics[:6] == ("mae_de", "iou_ss", "iou_ls", "iou_bevp", "tm", "mv")
     assert header == (["dataset", "method", "label", "n_seeds"] + [f"{k}_{s}" for k in metrics for s in ("mean", "sd")]
                       + ["above_floor"])
     # paper forms first, then the arms with runs, in arm order; cagrad has none
