@@ -46,12 +46,12 @@ def main(argv: list[str] | None = None) -> None:
         runs = dataset_runs(params, args.dataset)
         for split in ("train", "test"):
             read_split(cache, split)
-        for r in runs:  # every checkpoint exists and reads safely
-            read_best(r.dataset, r.model, r.paths.run_dir)
+        for r in runs:  # every checkpoint exists and reads safely (its tensors mapped, not read)
+            read_best(r.dataset, r.model, r.paths.run_dir, mmap=True)
         floor = evaluate_floors(args.dataset, cache, ".",
                                 save_predictions=params.evaluate.save_predictions, num_threads=params.train.num_threads)
         jobs = [Job(r.name, (args.params, r.dataset, r.model, str(r.paths.run_dir), str(r.paths.metrics_path),
-                             str(r.paths.eval_dir), r.arm, floor)) for r in runs]
+                             str(r.paths.eval_dir), r.arm, floor), cost=r.cost / r.max_epochs) for r in runs]
         run_jobs(evaluate_one, jobs, params.train.parallel_runs, desc=f"evaluate {args.dataset}")
     except (JobError, CacheError, RunError, FileNotFoundError) as err:
         sys.exit(f"error: {err}")

@@ -75,7 +75,7 @@ def main(argv: list[str] | None = None) -> None:
         cache = str(args.cache or Path("data/cache") / args.dataset)
         alone = len(runs) == 1
         jobs = [Job(r.name, (args.params, r.dataset, r.model, r.seed, r.arm, cache, str(args.out or r.paths.run_dir),
-                             alone), cost=r.max_epochs) for r in runs]
+                             alone), cost=r.cost) for r in runs]
         done = run_jobs(train_one, jobs, 1 if alone else params.train.parallel_runs, desc=f"train {args.dataset}")
     except (JobError, RunError, CacheError, ParamsError) as err:
         sys.exit(f"error: {err}")

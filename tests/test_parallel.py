@@ -46,6 +46,23 @@ def test_longest_first_keeps_the_order_of_equal_costs(monkeypatch):
     assert seen == ["b", "d", "a", "c"]
 
 
+def test_a_stage_starts_its_costliest_runs_first():
+    """A run's cost is its epoch cap times its model's epoch cost (core.catalog): at equal caps a
+    GradNorm SegNet run (the slowest network per epoch) starts before every compact run, so no
+    core waits alone for it at the end of the stage."""
+    from compact_perception.core import catalog
+    from compact_perception.core.config import parse_params
+    from compact_perception.plan import dataset_runs
+
+    params = parse_params(cap_epochs(repo_params_dict(), 2), "params.yaml")
+    runs = dataset_runs(params, "B")
+    costs = {r.model: r.cost for r in runs}
+    assert costs["gradnorm_segnet"] == 2 * catalog.MODELS["gradnorm_segnet"].epoch_cost
+    assert costs["compact_15l"] == 2 * 1.0
+    order = sorted(range(len(runs)), key=lambda i: -runs[i].cost)   # run_jobs' order
+    assert runs[order[0]].model == max(costs, key=costs.get) == "gradnorm_segnet"
+
+
 @pytest.mark.slow
 def test_a_run_in_a_pool_has_the_bytes_of_the_run_alone(tmp_path):
     """compact_1l seed 0 trained alone in this process, and in a pool of two worker processes after

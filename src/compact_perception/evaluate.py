@@ -157,15 +157,16 @@ def _compact_prediction(task: str, pred: torch.Tensor) -> np.ndarray:
     return (p > 0.5).numpy().astype(np.uint8)
 
 
-def read_best(dataset_id: str, model_id: str, run_dir: Path) -> dict:
+def read_best(dataset_id: str, model_id: str, run_dir: Path, *, mmap: bool = False) -> dict:
     """``run_dir/best.pt`` read with ``weights_only=True`` (tensors and plain containers only, so a
     crafted file cannot run code: ``runs/`` can come from a shared DVC cache). FileNotFoundError
-    naming it where the run wrote none; RunError where it is not a checkpoint."""
+    naming it where the run wrote none; RunError where it is not a checkpoint. ``mmap``: the
+    tensors stay memory-mapped, unread (a check of the file before the work, not a load)."""
     best = Path(run_dir) / "best.pt"
     if not best.is_file():
         raise FileNotFoundError(f"{best}: no best checkpoint; has the training of {dataset_id}/{model_id} finished?")
     try:
-        checkpoint = torch.load(best, map_location="cpu", weights_only=True)
+        checkpoint = torch.load(best, map_location="cpu", weights_only=True, mmap=mmap)
     except (RuntimeError, ValueError, AttributeError, pickle.UnpicklingError, EOFError) as err:
         raise RunError(f"{best}: not a checkpoint of {model_id} on {dataset_id} "
                        f"({' '.join(str(err).split())[:200]})") from None

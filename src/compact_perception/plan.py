@@ -31,7 +31,13 @@ class PlannedRun:
     seed: int                   # the training seed
     arm: Optional[str]          # the study arm, or None for the model's own recipe
     paths: RunPaths
-    max_epochs: int             # its epoch cap (the longest runs are started first)
+    max_epochs: int             # its epoch cap
+
+    @property
+    def cost(self) -> float:
+        """Its expected CPU time, relative: the epoch cap times the model's ``epoch_cost``
+        (the stage starts the longest runs first)."""
+        return self.max_epochs * catalog.MODELS[self.model].epoch_cost
 
     @property
     def name(self) -> str:

@@ -19,8 +19,8 @@ This module imports nothing heavy (no torch), so the config and every stage can 
 
 Adding a model (three files): the network's file in ``models/`` (its factory registers itself with
 ``@register_network``), the model's entry here, and in params.yaml its recipe
-(``train.models.<id>``) and its id in ``compact_ids``/``baseline_ids`` and ``model_ids`` (the
-lists dvc.yaml's matrices read).
+(``train.models.<id>``) and its id in ``model_ids`` (the list the train and evaluate stages read;
+its group here decides whether ``datasets.<ds>.training.seeds`` or ``baseline_seeds`` apply).
 """
 from __future__ import annotations
 
@@ -73,6 +73,9 @@ class ModelInfo:
     network: str                             # models.NETWORKS key
     table_order: int                         # its row in Tables II/III (the paper's order, baselines first)
     combination: tuple[str, ...] = ()        # the tasks it gives the combination of baselines (section V-D)
+    epoch_cost: float = 1.0                  # CPU time of an epoch relative to the compact model's (measured at
+                                             # 32 px: summary.json train_seconds / epochs_run); it only orders a
+                                             # stage's runs, the longest first, so no core idles at the end
 
 
 TASKS: Registry[TaskInfo] = Registry("task", ordered=True)
@@ -99,11 +102,11 @@ MODELS.register("compact_15l_mgn")(ModelInfo("15L+MGN (Alg. 1)", "compact", 15, 
 MODELS.register("compact_15l_mgn_authors")(ModelInfo("15L+MGN (authors' code)", "compact", 15, _ALL, "compact",
                                                      table_order=13))
 MODELS.register("gradnorm_segnet")(ModelInfo("GradNorm", "baseline", 15, ("de", "ss"), "gradnorm_segnet",
-                                             table_order=2, combination=("de", "ss")))
+                                             table_order=2, combination=("de", "ss"), epoch_cost=5.5))
 MODELS.register("polarnet")(ModelInfo("PolarNet", "baseline", 15, ("ls",), "polarnet", table_order=1,
-                                      combination=("ls",)))
+                                      combination=("ls",), epoch_cost=1.0))
 MODELS.register("chen_bev")(ModelInfo("Chen et al.", "baseline", 15, ("bevp",), "chen_bev", table_order=0,
-                                      combination=("bevp",)))
+                                      combination=("bevp",), epoch_cost=0.35))
 
 #: How a report names the data source a cache records (``meta.json`` ``source``).
 SOURCE_LABEL: dict[str, str] = {

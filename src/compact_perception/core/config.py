@@ -169,10 +169,12 @@ class SplitRatio(Strict):
         return n
 
 
-def _distinct_seeds(v: list[int]) -> list[int]:
-    """Training seeds: a non-empty list of distinct non-negative integers."""
-    if not v or any(k < 0 for k in v) or len(set(v)) != len(v):
-        raise ValueError(f"expected a non-empty list of distinct non-negative integers, got {v}")
+def _scaled_distinct_seeds(v: Scaled[list[int]]) -> Scaled[list[int]]:
+    """Training seeds at every scale: a non-empty list of distinct non-negative integers."""
+    for name in SCALES:
+        seeds = getattr(v, name)
+        if not seeds or any(k < 0 for k in seeds) or len(set(seeds)) != len(seeds):
+            raise ValueError(f"{name}: expected a non-empty list of distinct non-negative integers, got {seeds}")
     return v
 
 
@@ -188,9 +190,7 @@ class TrainingBudget(Strict):
     @field_validator("seeds")
     @classmethod
     def _seeds(cls, v: Scaled[list[int]]) -> Scaled[list[int]]:
-        for name in SCALES:
-            _distinct_seeds(getattr(v, name))
-        return v
+        return _scaled_distinct_seeds(v)
 
     @field_validator("max_epochs")
     @classmethod
@@ -537,9 +537,7 @@ class Params(Strict):
     @field_validator("baseline_seeds")
     @classmethod
     def _seeds(cls, v: Scaled[list[int]]) -> Scaled[list[int]]:
-        for name in SCALES:
-            _distinct_seeds(getattr(v, name))
-        return v
+        return _scaled_distinct_seeds(v)
 
     @field_validator("sim_ids", "dataset_ids", "model_ids")
     @classmethod
