@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Mapping, Optional
 
 from compact_perception.core.cache import CacheError, read_split
-from compact_perception.core.catalog import dataset_ids
+from compact_perception.core.catalog import MODELS, dataset_ids
 from compact_perception.core.errors import RunError
 from compact_perception.evaluate import evaluate_floors, evaluate_run, read_best
 from compact_perception.plan import dataset_runs
@@ -51,7 +51,7 @@ def main(argv: list[str] | None = None) -> None:
         floor = evaluate_floors(args.dataset, cache, ".",
                                 save_predictions=params.evaluate.save_predictions, num_threads=params.train.num_threads)
         jobs = [Job(r.name, (args.params, r.dataset, r.model, str(r.paths.run_dir), str(r.paths.metrics_path),
-                             str(r.paths.eval_dir), r.arm, floor), cost=r.cost / r.max_epochs) for r in runs]
+                             str(r.paths.eval_dir), r.arm, floor), cost=MODELS[r.model].epoch_cost) for r in runs]
         run_jobs(evaluate_one, jobs, params.train.parallel_runs, desc=f"evaluate {args.dataset}")
     except (JobError, CacheError, RunError, FileNotFoundError) as err:
         sys.exit(f"error: {err}")

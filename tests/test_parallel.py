@@ -46,21 +46,27 @@ def test_longest_first_keeps_the_order_of_equal_costs(monkeypatch):
     assert seen == ["b", "d", "a", "c"]
 
 
-def test_a_stage_starts_its_costliest_runs_first():
-    """A run's cost is its epoch cap times its model's epoch cost (core.catalog): at equal caps a
-    GradNorm SegNet run (the slowest network per epoch) starts before every compact run, so no
-    core waits alone for it at the end of the stage."""
+def test_a_stage_starts_its_costliest_runs_first(tmp_path, monkeypatch):
+    """The train stage gives each run's job its cost: the epoch cap times its model's epoch cost
+    (core.catalog), so at equal caps a GradNorm SegNet run (the slowest network per epoch) is the
+    first job run_jobs starts, and no core waits alone for it at the end of the stage."""
     from compact_perception.core import catalog
-    from compact_perception.core.config import parse_params
-    from compact_perception.plan import dataset_runs
+    import pipeline.train as stage
 
-    params = parse_params(cap_epochs(repo_params_dict(), 2), "params.yaml")
-    runs = dataset_runs(params, "B")
-    costs = {r.model: r.cost for r in runs}
-    assert costs["gradnorm_segnet"] == 2 * catalog.MODELS["gradnorm_segnet"].epoch_cost
-    assert costs["compact_15l"] == 2 * 1.0
-    order = sorted(range(len(runs)), key=lambda i: -runs[i].cost)   # run_jobs' order
-    assert runs[order[0]].model == max(costs, key=costs.get) == "gradnorm_segnet"
+    params = tmp_path / "params.yaml"
+    params.write_text(yaml.safe_dump(cap_epochs(repo_params_dict(), 2), sort_keys=False))
+    seen: list[Job] = []
+
+    def capture(fn, jobs, processes, desc):
+        seen.extend(jobs)
+        return [{"epochs_run": 2, "best_epoch": 1, "stop_reason": "max_epochs"}] * len(jobs)
+
+    monkeypatch.setattr(stage, "run_jobs", capture)
+    stage.main(["--dataset", "B", "--params", str(params)])
+    cost = {j.name: j.cost for j in seen}
+    assert cost["B/gradnorm_segnet/seed0"] == 2 * catalog.MODELS["gradnorm_segnet"].epoch_cost
+    assert cost["B/compact_15l/seed0"] == 2 * catalog.MODELS["compact_15l"].epoch_cost == 2.0
+    assert max(cost, key=cost.get) == "B/gradnorm_segnet/seed0"
 
 
 @pytest.mark.slow
