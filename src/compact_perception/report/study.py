@@ -6,8 +6,8 @@ Methods, per dataset of ``study.datasets`` (at ``scale``), in this order:
 - the paper's own weighting forms, the main runs (:data:`PAPER_FORMS`): ``compact_15l`` (equal
   static weights), ``compact_15l_mgn`` (MGN, Algorithm 1), ``compact_15l_mgn_authors`` (MGN as
   the authors' code runs it), read through :func:`.collect.list_runs`;
-- every study arm in ``study.arm_ids`` order (``runs/study/<arm>/seed<k>/<ds>/``,
-  ``results/study/<arm>/seed<k>/<ds>/metrics.json``; :func:`compact_perception.core.layout.study_paths`),
+- every study arm in ``study.arm_ids`` order (``runs/<ds>/study/<arm>/seed<k>/``,
+  ``results/<ds>/study/<arm>/seed<k>/metrics.json``; :func:`compact_perception.core.layout.study_paths`),
   the single-task arms (weighting ``single``) included: they are Δm's reference.
 
 Per run (one training seed of params ``seeds``): the four task metrics (test-set means), TM and MV
