@@ -32,7 +32,7 @@ def evaluate_one(params_path: str, dataset: str, model: str, run_dir: str, metri
     return evaluate_run(dataset, model, Path("data/cache") / dataset, Path(run_dir), Path(metrics_path),
                         Path(eval_dir), device_pref=params.train.device,
                         save_predictions=0 if arm else params.evaluate.save_predictions,
-                        num_threads=params.train.num_threads, floor=floor)
+                        num_threads=params.train.num_threads, depth_max_m=params.evaluate.depth_max_m, floor=floor)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -49,7 +49,8 @@ def main(argv: list[str] | None = None) -> None:
         for r in runs:  # every checkpoint exists and reads safely (its tensors mapped, not read)
             read_best(r.dataset, r.model, r.paths.run_dir, mmap=True)
         floor = evaluate_floors(args.dataset, cache, ".",
-                                save_predictions=params.evaluate.save_predictions, num_threads=params.train.num_threads)
+                                save_predictions=params.evaluate.save_predictions, num_threads=params.train.num_threads,
+                                depth_max_m=params.evaluate.depth_max_m)
         jobs = [Job(r.name, (args.params, r.dataset, r.model, str(r.paths.run_dir), str(r.paths.metrics_path),
                              str(r.paths.eval_dir), r.arm, floor), cost=MODELS[r.model].epoch_cost) for r in runs]
         run_jobs(evaluate_one, jobs, params.train.parallel_runs, desc=f"evaluate {args.dataset}")

@@ -10,6 +10,14 @@ import yaml
 
 os.environ["DVC_NO_ANALYTICS"] = "1"
 
+# The test process computes as the stages do: the same numeric pins (compact_perception.core.determinism),
+# set before any test imports numpy or runs a tensor op. Without them a run trained in the test process
+# (MKL, OpenBLAS, oneDNN on the machine's own code paths) and one trained by a stage in a subprocess (pinned)
+# differ in the last bits, and whether the pins were set depended on which test module imported `pipeline` first.
+from compact_perception.core.determinism import pin_numeric_libraries  # noqa: E402
+
+pin_numeric_libraries()
+
 ROOT = Path(__file__).resolve().parents[1]
 # Collected first: under `pytest -n 2` (make test) one worker starts the tiny end-to-end pipeline,
 # the longest module, at once while the other runs the rest (a stable sort keeps every other order).

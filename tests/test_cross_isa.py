@@ -16,6 +16,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
@@ -81,3 +82,46 @@ def test_other_machine_gives_the_same_bytes(tmp_path, root):
     assert any(unpinned[k] != here[k] for k in unpinned if k.startswith("data/raw/A/"))
     key = "results/A/compact_15l/seed0/metrics.json"
     assert unpinned[key] != here[key]
+
+
+DEPTH_SCRIPT = """
+import sys
+from compact_perception.core.determinism import pin_numeric_libraries
+pin_numeric_libraries()
+import numpy as np, pandas as pd, torch, json
+from compact_perception.evaluate import summarise_depth
+from compact_perception.metrics import depth_errors_per_sample
+rng = np.random.default_rng(5)                        # numpy's generators: the same numbers on every kernel
+gt = torch.from_numpy(rng.random((40, 4, 1, 32, 32)).astype(np.float32))
+pred = gt + torch.from_numpy((0.3 * rng.standard_normal((40, 4, 1, 32, 32))).astype(np.float32))  # some > 1, < 0
+rows = []
+for i in range(40):                                   # batch 1, as evaluation scores the test frames
+    e = depth_errors_per_sample(pred[i:i + 1], gt[i:i + 1], 80.0)
+    rows.append({k: float(v[0]) for k, v in e.items()})
+print(json.dumps(summarise_depth(pd.DataFrame(rows), 80.0), sort_keys=True))
+"""
+
+
+def _depth_summary(root: Path, extra_env: dict[str, str]) -> str:
+    env = {**os.environ, **extra_env, "PYTHONPATH": str(root / "src")}
+    proc = subprocess.run([sys.executable, "-c", DEPTH_SCRIPT], env=env, capture_output=True, text=True, cwd=root)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return proc.stdout
+
+
+def test_depth_metrics_reduction_is_the_same_on_another_machine(root):
+    """The metric-depth errors (exp, log and sqrt of every pixel, then per-frame sums and the
+    mean and variance over frames) write the same bytes under another machine's kernels: the
+    per-frame errors come from one frame at a time in float64 and the summary is rounded to
+    DEPTH_DIGITS significant digits, below which a last-bit difference of a sum cannot reach."""
+    from compact_perception.evaluate import DEPTH_DIGITS, _round_sig
+
+    here = _depth_summary(root, {})
+    other = _depth_summary(root, OTHER_MACHINE)
+    assert '"rmse_m"' in here and '"rmse_log"' in here and here == other
+    # and with the pins lifted: ATen's scalar kernels for exp, log and sqrt, numpy without AVX2
+    assert _depth_summary(root, {**OTHER_MACHINE, "COMPACT_PERCEPTION_UNPINNED": "1"}) == here
+    # a one-ulp change of a mean or variance leaves the written value as it was
+    x = 125.60123456789012
+    assert _round_sig(x) == _round_sig(float(np.nextafter(x, 0.0))) == _round_sig(float(np.nextafter(x, 1e9)))
+    assert len(repr(_round_sig(x)).replace(".", "")) <= DEPTH_DIGITS

@@ -95,7 +95,7 @@ def test_fixed_predictor_expands_to_the_batch():
 
 
 def test_floor_scores_use_the_metric_code(cache, tmp_path):
-    floor = evaluate_floors("A", cache, tmp_path, save_predictions=0, num_threads=1)
+    floor = evaluate_floors("A", cache, tmp_path, save_predictions=0, depth_max_m=80.0, num_threads=1)
     res = json.loads((tmp_path / "results" / "A" / "floor_pixel" / "metrics.json").read_text())
     # MAE by hand: depth 0.5 everywhere, but test frame 2's pixel (0,0,0) of view f is 0.25 -> |0.5-0.25|
     n_px = V * S * S

@@ -372,6 +372,36 @@ def test_depth_errors_by_hand() -> None:
     assert float(e2["delta_1.25"][0]) == pytest.approx(0.5) and math.isnan(float(e2["abs_rel"][1]))
 
 
+def test_depth_errors_field_convention_by_hand() -> None:
+    """Eigen et al.'s convention at an 80 m cap: ground truth beyond 80 m left out, the prediction
+    clamped to [3.33 m, 80 m] (one above the encoding's range, x = 1.4, and one at 400 m), and the
+    seven standard errors computed by hand on the three pixels that remain."""
+    near = 1000.0 * math.exp(-5.70378)
+    # gt: 10 m, 40 m, 60 m, 120 m (beyond the cap), sky; pred: 8.5 m, 400 m (-> 80), x = 1.4 (-> 80), 30 m, 5 m
+    gt = t([[[[_enc(10.0), _enc(40.0), _enc(60.0), _enc(120.0), 1.0]]]])
+    pred = t([[[[_enc(8.5), _enc(400.0), 1.4, _enc(30.0), _enc(5.0)]]]])
+    assert depth_valid_mask(gt, 80.0).tolist() == [[[[True, True, True, False, False]]]]
+    e = depth_errors_per_sample(pred, gt, 80.0)
+    d, g = [8.5, 80.0, 80.0], [10.0, 40.0, 60.0]                   # max(d/d*, d*/d): 1.176, 2.0, 1.333
+    assert float(e["n_valid"][0]) == 3
+    assert float(e["abs_rel"][0]) == pytest.approx((1.5 / 10 + 40 / 40 + 20 / 60) / 3, rel=1e-6)
+    assert float(e["sq_rel"][0]) == pytest.approx((2.25 / 10 + 1600 / 40 + 400 / 60) / 3, rel=1e-6)
+    assert float(e["rmse_m"][0]) == pytest.approx(math.sqrt((2.25 + 1600 + 400) / 3), rel=1e-6)
+    assert float(e["rmse_log"][0]) == pytest.approx(
+        math.sqrt(sum((math.log(a) - math.log(b)) ** 2 for a, b in zip(d, g)) / 3), rel=1e-6)
+    assert float(e["delta_1.25"][0]) == pytest.approx(1 / 3)         # only 1.176 < 1.25
+    assert float(e["delta_1.25^2"][0]) == pytest.approx(2 / 3)       # 1.176 and 1.333 < 1.5625; 2.0 is not
+    assert float(e["delta_1.25^3"][0]) == pytest.approx(2 / 3)       # 2.0 > 1.953
+    # without the cap, the same prediction above the range decodes to 1000 m and dominates
+    raw = depth_errors_per_sample(pred, gt)
+    assert float(raw["rmse_m"][0]) > 400 > float(e["rmse_m"][0])
+    # a prediction below the encoding's nearest depth is clamped to it (3.33 m)
+    low = depth_errors_per_sample(t([[[[-0.5]]]]), t([[[[_enc(10.0)]]]]), 80.0)
+    assert float(low["abs_rel"][0]) == pytest.approx((10.0 - near) / 10.0, rel=1e-6)
+    with pytest.raises(ValueError, match="max_m"):
+        depth_errors_per_sample(pred, gt, 2.0)
+
+
 # ----------------------------------------------------------------------------- evaluation summary
 def test_summarise_mv_of_the_means_and_tm() -> None:
     import pandas as pd
@@ -423,7 +453,7 @@ def test_evaluate_run_writes_paper_mv_and_field_metrics(tmp_path) -> None:
     torch.save({"model": model.state_dict(), "epoch": 0}, run / "best.pt")
     out = tmp_path / "metrics.json"
     evaluate_run("A", "compact_15l", cache, run, out, tmp_path / "eval", device_pref="cpu", save_predictions=1,
-                 num_threads=1)
+                 num_threads=1, depth_max_m=80.0)
     m = json.loads(out.read_text())
     pf = pd.read_csv(tmp_path / "eval" / "per_frame.csv")
     means = {c: float(pf[c].mean()) for c in TASK_COLUMNS}

@@ -164,7 +164,7 @@ def test_depth_metrics_derive_from_their_registry():
     keys = tuple(DEPTH_METRICS.keys())
     assert evaluate.DEPTH_COLUMNS == keys and extra.EXTRA_DEPTH == keys
     for k in keys:
-        assert DEPTH_METRICS[k].definition in evaluate.DEPTH_DEFINITION
+        assert DEPTH_METRICS[k].definition in evaluate.depth_definition(80.0)
         assert extra.EXTRA_MD[k] == DEPTH_METRICS[k].label
         assert f"{k}_mean" in extra.extra_csv([]).splitlines()[0]
     x = torch.full((1, 4, 1, 2, 2), 0.5, dtype=torch.float64)

@@ -39,7 +39,8 @@ def _params(params_dict: dict, *, epochs: int = 3, workers: int = 2):
 def _score(params, cache: Path, run: Path) -> bytes:
     out = run.parent / f"{run.name}-metrics.json"
     evaluate_run("A", MODEL, cache, run, out, run.parent / f"{run.name}-eval", device_pref="cpu",
-                 save_predictions=1, num_threads=params.train.num_threads)
+                 save_predictions=1, num_threads=params.train.num_threads,
+                 depth_max_m=params.evaluate.depth_max_m)
     return out.read_bytes()
 
 

@@ -452,3 +452,54 @@ def test_one_interval_is_fast() -> None:
     for _ in range(10):
         interval(comp, stat_mv, lambda v: v[..., 0] - v[..., 1:].max(axis=-1))
     assert (time.perf_counter() - t0) / 10 < 0.25
+
+
+# ----------------------------------------------------------------------------- seeds to decide
+def test_seeds_to_decide_two_model_design_by_hand() -> None:
+    """Two paired models, 3 seeds, 4 episodes of 5 frames; every frame of a run scores the run's
+    value, so the episodes add nothing and the interval is the seeds' paired t. The seeds'
+    contrasts 0.10, 0.14, 0.06 have sample variance 0.0016; at S seeds the SE is sqrt(0.0016 / S)
+    on S - 1 df and the MDE (t_{0.975,S-1} + t_{0.8,S-1}) SE, computed here with scipy. The
+    paper's effect 0.05 needs 8 seeds (7 give 0.0507); 0.2 needs the minimum, 3."""
+    from scipy import stats as sps
+
+    from compact_perception.stats import (MIN_SEEDS, interval, make_comparison, mde, seed_interval, seeds_to_decide,
+                                          stat_mean)
+
+    clusters = [c for c in range(4) for _ in range(5)]
+    a = {k: np.full((20, 1), v) for k, v in enumerate([0.40, 0.38, 0.44])}
+    b = {k: np.full((20, 1), a[k][0, 0] + d) for k, d in enumerate([0.10, 0.14, 0.06])}
+    res = interval(make_comparison([a, b], clusters), stat_mean, lambda v: v[..., 1] - v[..., 0])
+    assert res.estimate == pytest.approx(0.10) and res.se == pytest.approx(math.sqrt(0.0016 / 3))
+    assert res.mde == pytest.approx(mde(math.sqrt(0.0016 / 3), 2.0))
+
+    def by_hand(effect: float) -> int:
+        for s in range(MIN_SEEDS, 101):
+            if (sps.t.ppf(0.975, s - 1) + sps.t.ppf(0.8, s - 1)) * math.sqrt(0.0016 / s) <= effect:
+                return s
+        raise AssertionError("not reached")
+
+    assert by_hand(0.05) == 8
+    assert seeds_to_decide(res, 0.05) == 8 and seeds_to_decide(res, -0.05) == 8      # the sign does not matter
+    assert seeds_to_decide(res, 0.2) == by_hand(0.2) == MIN_SEEDS
+    assert seeds_to_decide(res, 1e-4) is None                                          # beyond 100 seeds
+    assert seeds_to_decide(res, None) is None and seeds_to_decide(seed_interval([0.1, 0.2]), 0.1) is None
+    one = interval(make_comparison([{0: a[0]}, {0: b[0]}], clusters), stat_mean, lambda v: v[..., 1] - v[..., 0])
+    assert seeds_to_decide(one, 0.05) is None                                          # one seed: no seed variance
+
+
+def test_seeds_to_decide_keeps_the_episodes_part() -> None:
+    """With an episode effect the models do not share, more seeds shrink only the seed part: an
+    effect below the episodes' own MDE is never reached (None), a larger one is."""
+    from compact_perception.stats import interval, make_comparison, seeds_to_decide, stat_mean
+
+    rng = np.random.default_rng(0)
+    clusters = [c for c in range(6) for _ in range(5)]
+    ep = np.repeat(rng.normal(0, 0.05, 6), 5)[:, None]                 # model b's own episode effect
+    a = {k: np.full((30, 1), 0.4 + 0.01 * k) for k in range(3)}
+    b = {k: a[k] + 0.1 + ep + 0.002 * (k - 1) for k in range(3)}
+    res = interval(make_comparison([a, b], clusters), stat_mean, lambda v: v[..., 1] - v[..., 0])
+    floor_mde = res.mde
+    assert seeds_to_decide(res, floor_mde / 3) is None
+    n = seeds_to_decide(res, floor_mde * 1.01)
+    assert n is not None and n >= 3

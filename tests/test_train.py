@@ -231,5 +231,5 @@ def test_single_task_arm_trains_and_scores_a_one_task_network(tmp_path, params_d
     assert summary["final_weights"] == {"w_ls": 1.0}
     assert not (run / "model.onnx").exists()
     result = evaluate_run("A", "compact_15l", cache, run, tmp_path / "metrics.json", tmp_path / "eval",
-                          device_pref="cpu", save_predictions=1, num_threads=1)
+                          device_pref="cpu", save_predictions=1, num_threads=1, depth_max_m=80.0)
     assert "iou_ls" in result and not {"mae_de", "iou_ss", "iou_bevp", "tm"} & set(result)

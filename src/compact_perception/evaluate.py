@@ -10,8 +10,8 @@ and ground truth) of the first frames are saved for the qualitative figures.
 
 Beside the paper's metrics, ``metrics.json`` holds the ones the field expects (not in the
 paper): ``class_iou`` (per-class IoU and mIoU of SS, LS and BEVP from confusion counts summed
-over the test set) and ``depth`` (AbsRel, RMSE in metres and delta < 1.25 on metric depth,
-mean and variance over frames); see :data:`CLASS_IOU_DEFINITION` and :data:`DEPTH_DEFINITION`.
+over the test set) and ``depth`` (Eigen et al.'s depth errors on metric depth in the evaluated
+range, mean and variance over frames); see :data:`CLASS_IOU_DEFINITION` and :func:`depth_definition`.
 """
 from __future__ import annotations
 
@@ -32,7 +32,7 @@ from .core.layout import floor_paths
 from .core.depth import DEPTH_FAR_M, DEPTH_LOG_K
 from .data import make_loader, to_device
 from .core.determinism import resolve_device, set_threads
-from .metrics import (DEPTH_METRICS, MV_DEFINITION, class_confusion, class_iou, compute_metrics,
+from .metrics import (DEPTH_CONVENTION, DEPTH_METRICS, DEPTH_NEAR_M, MV_DEFINITION, class_confusion, class_iou, compute_metrics,
                       depth_errors_per_sample, mean_iou, multilabel_confusion, scores_from_means, total_metric,
                       ARGMAX_TASKS, iou_argmax_per_sample)
 from .floor import TRIVIAL, fit_trivial, floor_of, margins
@@ -60,13 +60,21 @@ CLASS_IOU_DEFINITION = (
     "prediction > 0.5 against ground truth > 0.5; a class with TP + FP + FN = 0 (absent from prediction and ground "
     "truth) has IoU null and is left out of mIoU; all classes of the cache count, including 'unlabeled'/'noise'"
 )
-DEPTH_DEFINITION = (
-    f"metric depth d = {DEPTH_FAR_M:g} m * exp((x - 1) * {DEPTH_LOG_K}) from the cache's CARLA log depth x in [0, 1] (prediction "
-    "clamped to [0, 1]: 3.33 m .. 1000 m); pixels with ground truth x = 0 (no depth) or x = 1 (1000 m far clip, "
-    "sky) left out; per frame over the valid pixels of the 4 views: "
-    + ", ".join(DEPTH_METRICS[k].definition for k in DEPTH_COLUMNS)
-    + "; reported as mean and population variance over the frames that have valid pixels"
-)
+#: Significant digits of the depth errors' mean and variance in metrics.json (:func:`summarise_depth`).
+DEPTH_DIGITS = 12
+
+
+def depth_definition(max_m: float) -> str:
+    """metrics.json's words for the ``depth`` block at the evaluated maximum ``max_m``."""
+    return (
+        f"metric depth d = {DEPTH_FAR_M:g} m * exp((x - 1) * {DEPTH_LOG_K}) from the cache's CARLA log depth x in [0, 1]; "
+        f"evaluated range {DEPTH_NEAR_M:.2f} m .. {max_m:g} m by the field's convention ({DEPTH_CONVENTION}): the "
+        f"prediction clamped to that range, pixels whose ground truth is x = 0 (no depth), x = 1 (1000 m far clip, sky) "
+        f"or deeper than {max_m:g} m left out; per frame over the valid pixels of the 4 views: "
+        + ", ".join(DEPTH_METRICS[k].definition for k in DEPTH_COLUMNS)
+        + f"; reported as mean and population variance over the frames that have valid pixels, rounded to "
+        f"{DEPTH_DIGITS} significant digits (the same bytes on every x86-64 machine: docs)"
+    )
 
 
 def frame_scores(metrics: dict[str, float]) -> dict[str, float]:
@@ -103,13 +111,22 @@ def summarise_argmax(per_frame: pd.DataFrame) -> dict | None:
     return {**out, "definition": ARGMAX_DEFINITION} if out else None
 
 
-def summarise_depth(per_frame: pd.DataFrame) -> dict | None:
-    """Mean and variance over frames (those with valid pixels) of the depth errors."""
+def _round_sig(x: float, digits: int = DEPTH_DIGITS) -> float:
+    """``x`` to ``digits`` significant digits (a last-bit difference of the sum below it vanishes)."""
+    return float(f"{x:.{digits}g}")
+
+
+def summarise_depth(per_frame: pd.DataFrame, max_m: float = DEPTH_FAR_M) -> dict | None:
+    """Mean and variance over frames (those with valid pixels) of the depth errors, rounded to
+    :data:`DEPTH_DIGITS` significant digits: their per-frame values pass through exp, log and
+    sqrt, whose last bit the project pins to one instruction set but cannot prove identical on
+    every CPU, and the report prints 2-3 decimals."""
     if not all(c in per_frame for c in DEPTH_COLUMNS):
         return None
     ok = per_frame[DEPTH_COLUMNS[0]].notna()  # every depth metric is NaN exactly on frames without valid pixels
-    out: dict = {c: _mean_var(per_frame.loc[ok, c]) if ok.any() else None for c in DEPTH_COLUMNS}
-    out.update({"n_frames": int(ok.sum()), "definition": DEPTH_DEFINITION})
+    out: dict = {c: {k: _round_sig(v) for k, v in _mean_var(per_frame.loc[ok, c]).items()} if ok.any() else None
+                 for c in DEPTH_COLUMNS}
+    out.update({"n_frames": int(ok.sum()), "max_m": float(max_m), "definition": depth_definition(max_m)})
     return out
 
 
@@ -189,7 +206,7 @@ def load_trained(dataset_id: str, model_id: str, run_dir: Path) -> tuple[torch.n
 
 
 def _score_frames(model: torch.nn.Module, loader, ids: list[str], n_cls: int, device: torch.device,
-                  save_predictions: int, desc: str) -> tuple[pd.DataFrame, ClassCounts, dict, dict]:
+                  save_predictions: int, desc: str, depth_max_m: float) -> tuple[pd.DataFrame, ClassCounts, dict, dict]:
     """Per-frame scores (batch 1) of ``model`` over the test loader, the class counts, and the
     predictions and inputs of the first ``save_predictions`` frames."""
     rows, preds, inputs = [], {t: [] for t in model.tasks}, {}
@@ -202,7 +219,7 @@ def _score_frames(model: torch.nn.Module, loader, ids: list[str], n_cls: int, de
             row.update({f"iou_{t}{ARGMAX_SUFFIX}": float(iou_argmax_per_sample(out[t], batch[t])[0])
                         for t in ARGMAX_TASKS if t in out and t in batch})
             if "de" in out and "de" in batch:
-                row.update({k: float(v[0]) for k, v in depth_errors_per_sample(out["de"], batch["de"]).items()})
+                row.update({k: float(v[0]) for k, v in depth_errors_per_sample(out["de"], batch["de"], depth_max_m).items()})
             rows.append(row)
             counts.add(out, batch)
             if i < save_predictions:
@@ -215,6 +232,7 @@ def _score_frames(model: torch.nn.Module, loader, ids: list[str], n_cls: int, de
 
 def score_test_split(model: torch.nn.Module, dataset_id: str, name: str, cache_dir: Path, out_json: Path,
                      eval_dir: Path, *, device: torch.device, lidar_channels: int, save_predictions: int,
+                     depth_max_m: float,
                      floor: Mapping[str, float] | None = None, extra: Mapping[str, object] | None = None) -> dict:
     """Score ``model`` (a trained network or a trivial predictor, :mod:`.floor`) on the test split of
     ``cache_dir``, frame by frame, and write ``out_json`` (Table II's numbers and the extra
@@ -228,9 +246,9 @@ def score_test_split(model: torch.nn.Module, dataset_id: str, name: str, cache_d
     loader = make_loader(cache_dir, "test", lidar_channels, 1, shuffle=False, seed=0, num_workers=0, drop_last=False)
     ids = read_split(cache_dir, "test", meta).frame_ids
     per_frame, counts, preds, inputs = _score_frames(model, loader, ids, n_cls, device, save_predictions,
-                                                     f"evaluate {dataset_id}/{name}")
+                                                     f"evaluate {dataset_id}/{name}", depth_max_m)
     result: dict = dict(summarise(per_frame))
-    for key, block in (("argmax", summarise_argmax(per_frame)), ("depth", summarise_depth(per_frame))):
+    for key, block in (("argmax", summarise_argmax(per_frame)), ("depth", summarise_depth(per_frame, depth_max_m))):
         if block is not None:
             result[key] = block
     cls = counts.summary({"ss": list(meta["seg_classes"]), "ls": list(meta["seg_classes"]),
@@ -261,7 +279,7 @@ def _write_outputs(eval_dir: Path, out_json: Path, result: dict, per_frame: pd.D
 
 
 def evaluate_run(dataset_id: str, model_id: str, cache_dir: Path, run_dir: Path, out_json: Path,
-                 eval_dir: Path, *, device_pref: str, save_predictions: int, num_threads: int,
+                 eval_dir: Path, *, device_pref: str, save_predictions: int, num_threads: int, depth_max_m: float,
                  floor: Mapping[str, float] | None = None) -> dict:
     """Score ``run_dir/best.pt`` on the test split of ``cache_dir`` with ``num_threads`` torch
     threads (``train.num_threads``: the thread count is part of the result)."""
@@ -270,11 +288,12 @@ def evaluate_run(dataset_id: str, model_id: str, cache_dir: Path, run_dir: Path,
     model, best_epoch = load_trained(dataset_id, model_id, Path(run_dir))
     return score_test_split(model, dataset_id, model_id, cache_dir, out_json, eval_dir,
                             device=resolve_device(device_pref), lidar_channels=catalog.MODELS[model_id].lidar_channels,
-                            save_predictions=save_predictions, floor=floor, extra={"best_epoch": best_epoch})
+                            save_predictions=save_predictions, depth_max_m=depth_max_m, floor=floor,
+                            extra={"best_epoch": best_epoch})
 
 
 def evaluate_floors(dataset_id: str, cache_dir: Path, root: Path | str = ".", *, save_predictions: int,
-                    num_threads: int) -> dict[str, float]:
+                    depth_max_m: float, num_threads: int) -> dict[str, float]:
     """Fit every trivial predictor (:data:`.floor.TRIVIAL`) on the train split of ``cache_dir``, score
     it on the test split into ``results/<ds>/<id>/metrics.json`` and ``data/eval/<ds>/<id>/``, and
     return the per-task floor (:func:`.floor.floor_of`)."""
@@ -284,6 +303,7 @@ def evaluate_floors(dataset_id: str, cache_dir: Path, root: Path | str = ".", *,
         paths = floor_paths(dataset_id, tid, root)
         res = score_test_split(fit_trivial(tid, cache_dir), dataset_id, tid, cache_dir, paths.metrics_path,
                                paths.eval_dir, device=torch.device("cpu"), lidar_channels=15,
-                               save_predictions=save_predictions, extra={"predictor": TRIVIAL[tid].label})
+                               save_predictions=save_predictions, depth_max_m=depth_max_m,
+                               extra={"predictor": TRIVIAL[tid].label})
         means[tid] = {k: v["mean"] for k, v in res.items() if isinstance(v, dict) and "mean" in v}
     return floor_of(means)

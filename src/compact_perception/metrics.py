@@ -22,8 +22,10 @@ Metrics the field expects, beside the paper's (not in the paper):
   :func:`mean_iou` over the classes present (a class with TP + FP + FN = 0, absent from both
   prediction and ground truth, has no IoU and is left out of the mean).
 - :func:`decode_log_depth` and :func:`depth_errors_per_sample`: the metric-depth errors of the
-  registry :data:`DEPTH_METRICS` (AbsRel, RMSE (m), the delta < 1.25 accuracy) on metric depth
-  decoded from the cache's CARLA log encoding. A new depth metric is one registry entry here:
+  registry :data:`DEPTH_METRICS` (Eigen et al.'s standard set: AbsRel, SqRel, RMSE, RMSE log,
+  delta < 1.25, 1.25^2, 1.25^3) on metric depth decoded from the cache's CARLA log encoding, by
+  the field's convention (:data:`DEPTH_CONVENTION`: ground truth capped at the evaluated maximum,
+  ``evaluate.depth_max_m``, prediction clamped to the evaluated range, valid pixels only). A new depth metric is one registry entry here:
   evaluation's columns and the report's table derive from the registry.
 
 Batch-level functions (:func:`mae`, :func:`iou`, :func:`compute_metrics`) pool all elements of
@@ -32,6 +34,7 @@ for the batch-1 test evaluation of Table II (mean +- variance over test frames).
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any, Callable, Collection, Literal, Mapping, Union
 
@@ -68,6 +71,8 @@ __all__ = [
     "mean_iou",
     "DEPTH_FAR_M",
     "DEPTH_LOG_K",
+    "DEPTH_NEAR_M",
+    "DEPTH_CONVENTION",
     "decode_log_depth",
     "depth_valid_mask",
     "depth_errors_per_sample",
@@ -319,6 +324,13 @@ def mean_iou(ious: Any) -> float:
 
 #: The cache's depth is CARLA's logarithmic depth in [0, 1] (world/camera.py ``encode_depth``,
 #: nuscenes/projection.py ``carla_log_depth``), whose constants :mod:`.core.depth` defines.
+#: The nearest depth the encoding holds (x = 0): 1000 m * exp(-5.70378) = 3.33 m.
+DEPTH_NEAR_M = DEPTH_FAR_M * math.exp(-DEPTH_LOG_K)
+#: Where the depth-evaluation convention comes from (metrics.json and the report's notes cite it).
+DEPTH_CONVENTION = (
+    "Eigen et al. (NIPS 2014) as KITTI depth benchmarks since apply it: ground truth capped at the evaluated "
+    "maximum (pixels beyond it left out), prediction clamped to the evaluated range, valid pixels only, each "
+    "error per frame then averaged over frames")
 
 
 def decode_log_depth(x: Tensor) -> Tensor:
@@ -327,17 +339,22 @@ def decode_log_depth(x: Tensor) -> Tensor:
     return DEPTH_FAR_M * torch.exp((x.double().clamp(0.0, 1.0) - 1.0) * DEPTH_LOG_K)
 
 
-def depth_valid_mask(target: Tensor) -> Tensor:
-    """Ground-truth pixels with a valid depth: ``0 < x < 1``. ``x = 0`` is "no depth" (a
-    nuScenes pixel no LiDAR point reaches is stored as 0) or nearer than the 3.33 m floor;
-    ``x = 1`` is the 1000 m far clip (sky / no hit in the simulated world)."""
-    return (target > 0.0) & (target < 1.0)
+def depth_valid_mask(target: Tensor, max_m: float = DEPTH_FAR_M) -> Tensor:
+    """Ground-truth pixels evaluated: ``0 < x < 1`` and a decoded depth of at most ``max_m``.
+    ``x = 0`` is "no depth" (a nuScenes pixel no LiDAR point reaches is stored as 0) or nearer
+    than the 3.33 m floor; ``x = 1`` is the 1000 m far clip (sky / no hit in the simulated world);
+    beyond ``max_m`` the ground truth is capped away, as the field's depth evaluation does."""
+    ok = (target > 0.0) & (target < 1.0)
+    if max_m < DEPTH_FAR_M:
+        ok = ok & (decode_log_depth(target) <= max_m)
+    return ok
 
 
 @dataclass(frozen=True)
 class DepthMetric:
     """A metric-depth error beyond the paper: per frame, ``finish(mean over the valid pixels of
-    per_pixel(d, d*))``, with d the decoded prediction and d* the decoded ground truth (m)."""
+    per_pixel(d, d*))``, with d the decoded, range-clamped prediction and d* the decoded ground
+    truth (m)."""
 
     label: str                                   # report label: "RMSE (m)"
     definition: str                              # how it is computed, in words (metrics.json)
@@ -347,30 +364,47 @@ class DepthMetric:
     finish: Callable[[Tensor], Tensor] = lambda x: x
 
 
+def _delta(power: int) -> Callable[[Tensor, Tensor], Tensor]:
+    return lambda d, g: (torch.maximum(d / g, g / d) < 1.25 ** power).double()
+
+
 #: depth metric id (the metrics.json key) -> its definition; evaluation and the report iterate it
+#: (the standard set of Eigen et al. 2014: AbsRel, SqRel, RMSE, RMSE log and the three delta accuracies)
 DEPTH_METRICS: Registry[DepthMetric] = Registry("depth metric", ordered=True)
 DEPTH_METRICS.register("abs_rel")(DepthMetric(
     "AbsRel", "AbsRel = mean |d - d*| / d*", "lower", 3, lambda d, g: (d - g).abs() / g))
+DEPTH_METRICS.register("sq_rel")(DepthMetric(
+    "SqRel (m)", "SqRel = mean (d - d*)^2 / d* (m)", "lower", 3, lambda d, g: (d - g) ** 2 / g))
 DEPTH_METRICS.register("rmse_m")(DepthMetric(
-    "RMSE (m)", "RMSE in metres", "lower", 2, lambda d, g: (d - g) ** 2, torch.sqrt))
+    "RMSE (m)", "RMSE = sqrt(mean (d - d*)^2) (m)", "lower", 2, lambda d, g: (d - g) ** 2, torch.sqrt))
+DEPTH_METRICS.register("rmse_log")(DepthMetric(
+    "RMSE log", "RMSE log = sqrt(mean (ln d - ln d*)^2)", "lower", 3,
+    lambda d, g: (torch.log(d) - torch.log(g)) ** 2, torch.sqrt))
 DEPTH_METRICS.register("delta_1.25")(DepthMetric(
-    "δ<1.25", "delta_1.25 = share with max(d/d*, d*/d) < 1.25", "higher", 3,
-    lambda d, g: (torch.maximum(d / g, g / d) < 1.25).double()))
+    "δ<1.25", "delta_1.25 = share with max(d/d*, d*/d) < 1.25", "higher", 3, _delta(1)))
+DEPTH_METRICS.register("delta_1.25^2")(DepthMetric(
+    "δ<1.25²", "delta_1.25^2 = share with max(d/d*, d*/d) < 1.25^2", "higher", 3, _delta(2)))
+DEPTH_METRICS.register("delta_1.25^3")(DepthMetric(
+    "δ<1.25³", "delta_1.25^3 = share with max(d/d*, d*/d) < 1.25^3", "higher", 3, _delta(3)))
 
 
 @torch.no_grad()
-def depth_errors_per_sample(pred: Tensor, target: Tensor) -> dict[str, Tensor]:
-    """Per sample (B,): every metric of :data:`DEPTH_METRICS` (``abs_rel`` = mean |d - d*| / d*,
-    ``rmse_m`` = sqrt(mean (d - d*)^2) in metres, ``delta_1.25`` = share of pixels with
-    max(d/d*, d*/d) < 1.25), and ``n_valid``, over the valid ground-truth pixels
-    (:func:`depth_valid_mask`) of all views; d is the decoded prediction, d* the decoded ground
-    truth. A sample without valid pixels gives NaN."""
+def depth_errors_per_sample(pred: Tensor, target: Tensor, max_m: float = DEPTH_FAR_M) -> dict[str, Tensor]:
+    """Per sample (B,): every metric of :data:`DEPTH_METRICS` and ``n_valid``, over the valid
+    ground-truth pixels (:func:`depth_valid_mask`: 0 < x* < 1 and d* <= ``max_m``) of all views,
+    the field's convention (:data:`DEPTH_CONVENTION`): d is the decoded prediction clamped to
+    [3.33 m, ``max_m``] (the encoding's nearest depth, the evaluated maximum), d* the decoded
+    ground truth. A sample without valid pixels gives NaN. Sums run in float64 over a fixed
+    order (one sample at a time), so the result does not depend on the batch."""
     p, g = pred.detach(), target.detach()
     if p.shape != g.shape:
         raise ValueError(f"depth_errors_per_sample: prediction {tuple(p.shape)} and target {tuple(g.shape)} differ")
+    if not DEPTH_NEAR_M < max_m <= DEPTH_FAR_M:
+        raise ValueError(f"depth_errors_per_sample: max_m must lie in ({DEPTH_NEAR_M:.2f}, {DEPTH_FAR_M:g}] m, got {max_m}")
     b = p.shape[0]
-    valid = depth_valid_mask(g).reshape(b, -1)
-    d, d_gt = decode_log_depth(p).reshape(b, -1), decode_log_depth(g).reshape(b, -1)
+    valid = depth_valid_mask(g, max_m).reshape(b, -1)
+    d = decode_log_depth(p).clamp(DEPTH_NEAR_M, max_m).reshape(b, -1)
+    d_gt = decode_log_depth(g).reshape(b, -1)
     n = valid.sum(dim=1).double()
     safe_n = n.clamp(min=1.0)
     v = valid.double()

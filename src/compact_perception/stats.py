@@ -93,6 +93,10 @@ Power (:func:`mde`): the minimal detectable effect at 80% power, two-sided alpha
 ``(t_{1-alpha/2, df} + t_{power, df}) * SE`` (the usual normal-approximation formula with t
 quantiles at the interval's df; it ignores the chance of crossing the opposite bound).
 
+Seeds to decide (:func:`seeds_to_decide`): the fewest seeds per model at which that MDE falls to
+a given effect (the paper's), from the measured variance components scaled to that many seeds
+(the seed part shrinks as 1/S with S - 1 df; the test episodes' part net of the interaction stays).
+
 No verdict from a single run (:func:`decidable`): with fewer than :data:`MIN_SEEDS` seeds in a
 non-fixed group the comparison is :data:`NOT_DECIDABLE`; a fixed group is exempt.
 
@@ -125,7 +129,7 @@ __all__ = [
     "REPRODUCED", "CONTRADICTED", "INCONCLUSIVE", "NOT_DECIDABLE", "VERDICTS",
     "COVERAGE_SEED", "COVERAGE_SIMS", "STATISTICS", "LEVELS", "COMPOSITIONS", "SCENARIOS",
     "Group", "Comparison", "make_comparison", "IntervalResult", "interval", "seed_interval",
-    "t_cdf", "t_ppf", "normal_ppf", "satterthwaite_df", "mde", "decidable", "comparison_verdict",
+    "t_cdf", "t_ppf", "normal_ppf", "satterthwaite_df", "mde", "seeds_to_decide", "MAX_SEEDS_TO_DECIDE", "decidable", "comparison_verdict",
     "undecidable_note", "Scenario", "Design", "simulate", "CoverageResult", "coverage", "coverage_line",
     "BootstrapResult", "stat_mean", "stat_tm", "stat_mv", "bootstrap_contrast", "paired_bootstrap",
     "seed_bootstrap", "verdict",
@@ -538,6 +542,7 @@ class IntervalResult:
     n_frames: int
     paired: bool
     confidence: float = CONFIDENCE
+    parts: Optional[_Parts] = field(default=None, compare=False, repr=False)   # the t methods' variance components
 
     @property
     def decidable(self) -> bool:
@@ -550,14 +555,15 @@ class IntervalResult:
         return mde(self.se, self.df)
 
 
-def _t_result(comp: Comparison, est: float, se: float, df: float, method: str, confidence: float) -> IntervalResult:
+def _t_result(comp: Comparison, est: float, se: float, df: float, method: str, confidence: float,
+              parts: Optional[_Parts] = None) -> IntervalResult:
     if math.isfinite(se) and not math.isnan(df):
         half = t_ppf(0.5 + confidence / 2.0, df) * se
         lo, hi = est - half, est + half
     else:
         lo = hi = math.nan
     return IntervalResult(est, lo, hi, se, df, method, comp.n_seeds, tuple(g.fixed for g in comp.groups),
-                          comp.n_clusters, comp.n_frames, comp.paired, confidence)
+                          comp.n_clusters, comp.n_frames, comp.paired, confidence, parts)
 
 
 def _pigeonhole(comp: Comparison, statistic: Statistic, contrast: Contrast, n_boot: int, seed: int,
@@ -619,7 +625,7 @@ def interval(comp: Comparison, statistic: Statistic, contrast: Contrast, *, meth
         se, df = _seed_only(parts)
     else:
         se, df = _crossed(parts, method == "crossed-t-conservative")
-    return _t_result(comp, lin.estimate, se, df, method, confidence)
+    return _t_result(comp, lin.estimate, se, df, method, confidence, parts)
 
 
 def seed_interval(values: Sequence[float], *, confidence: float = CONFIDENCE) -> IntervalResult:
@@ -644,6 +650,36 @@ def mde(se: float, df: float, *, alpha: float = ALPHA, power: float = POWER) -> 
     if not (math.isfinite(se) and (math.isfinite(df) or df == math.inf)):
         return math.nan
     return (t_ppf(1.0 - alpha / 2.0, df) + t_ppf(power, df)) * se
+
+
+#: The most seeds per model :func:`seeds_to_decide` looks at (beyond: more test episodes are needed).
+MAX_SEEDS_TO_DECIDE = 100
+
+
+def seeds_to_decide(res: IntervalResult, effect: Optional[float], *, max_seeds: int = MAX_SEEDS_TO_DECIDE,
+                    power: float = POWER) -> Optional[int]:
+    """The fewest training seeds per trained model (at least :data:`MIN_SEEDS`) at which the design
+    of ``res`` detects a true difference of ``|effect|`` with probability ``power``: its
+    :func:`mde` at S seeds is at most ``|effect|``. The measured variance components are scaled to
+    S seeds: each seed block's ``V_seed`` (the variance of its seed means / s) by s / S on S - 1 df,
+    the interaction ``V_inter`` (~ 1/S) likewise, so the cluster part net of it,
+    ``max(0, V_cluster - V_inter)``, stays (the test episodes do not change with the seeds), and
+    the interval's combination (:func:`_combined`) gives the SE and df at S. ``None`` where it
+    cannot be said (no effect, an interval from a non-t method, a trained model with one seed: no
+    seed variance) or where ``max_seeds`` do not reach it (the test episodes alone then limit the
+    design: more test frames, not seeds, are needed)."""
+    parts = res.parts
+    if effect is None or not math.isfinite(effect) or effect == 0.0 or parts is None:
+        return None
+    if not parts.seed or not all(math.isfinite(v) for v, _ in parts.seed) or not math.isfinite(parts.cluster[0]):
+        return None
+    net = parts.cluster[0] - sum(v for v, _ in parts.inter)
+    for s in range(MIN_SEEDS, max_seeds + 1):
+        seed = tuple((v * (d + 1.0) / s, float(s - 1)) for v, d in parts.seed)
+        se, df = _combined(_Parts(seed, (net, parts.cluster[1]), ()), res.confidence)
+        if mde(se, df, power=power) <= abs(effect):
+            return s
+    return None
 
 
 def decidable(n_seeds: Sequence[int], fixed: Optional[Sequence[bool]] = None) -> bool:

@@ -516,6 +516,8 @@ class StudyParams(Strict):
 class EvalParams(Strict):
     figure_frame: int = Field(ge=0, description="test frame shown in the qualitative figures")
     save_predictions: int = Field(ge=0, description="test frames whose predictions are saved")
+    depth_max_m: float = Field(gt=3.34, le=1000.0, description="metric-depth evaluation: ground truth capped at this "
+                               "depth (m) and predictions clamped to it (the field's convention: 80 m)")
 
 
 class BenchmarkParams(Strict):

@@ -51,7 +51,8 @@ import pandas as pd
 from ..core import catalog
 from ..core.cache import frame_cluster
 from ..stats import (CONTRADICTED, INCONCLUSIVE, METHOD, MIN_SEEDS, NOT_DECIDABLE, REPRODUCED, CoverageResult, Design,
-                     IntervalResult, comparison_verdict, coverage, coverage_line, interval, seed_interval, verdict)
+                     MAX_SEEDS_TO_DECIDE, IntervalResult, comparison_verdict, coverage, coverage_line, interval,
+                     seed_interval, seeds_to_decide, verdict)
 from .collect import (CONVERGED, ReportInputError, SeedSpec, frame_comparison, list_runs, load_floor_frames,
                       load_floor_results, load_row_frames, read_summary, seeds_for)
 from .gate import NO_FLOOR, DatasetFloor, Gate, Margin, failing_text
@@ -134,7 +135,13 @@ RULE_TEXT = (
     "the table. MV is one number per run (eq. 7 of the four test-set means), linearised the same way. "
     "**MDE**: the minimal detectable effect of the row's design, the true difference the interval would find "
     "with 80% power at two-sided 5% ((t_{0.975,df} + t_{0.8,df}) × SE); beside the paper's effect it tells whether "
-    "`inconclusive` means no effect or an effect this run could not have seen. "
+    "`inconclusive` means no effect or an effect this run could not have seen. **Seeds to decide**: the training "
+    "seeds per model at which the row's MDE falls to the paper's effect (|Paper|), found from this run's variance "
+    "components: the seed part (the variance of the seeds' contrasts over the seeds) scaled to S seeds on S − 1 df, "
+    "the test episodes' part net of the run × episode interaction unchanged (the same test frames), the same "
+    f"interval as the row's; `>{MAX_SEEDS_TO_DECIDE}`: no seed count reaches it (the test episodes limit the design: "
+    "more test frames, i.e. a larger scale, are needed); empty: no printed effect, a claim of equality, or a model "
+    "with one seed (no seed variance to scale). "
     "The combination's per-frame scores join GradNorm (DE, SS), PolarNet (LS) and Chen et al. (BEVP) of the same "
     "seed on the same frame. `Seeds`: the number of runs of each model compared (the CSV's `n_seeds` is the "
     "smallest). The claims about 15L+MGN are tested for both MGN forms, one row each: `Alg. 1` = "
@@ -157,7 +164,8 @@ class ClaimRow:
     """One line of the scorecard. ``model``: the model whose claim it is (the MGN form for the
     claims about 15L+MGN); ``variant``: the MGN form's label (empty for the other claims);
     ``mde``: the minimal detectable effect at 80% power of the row's design; ``above_floor``:
-    ``yes``, ``no: <models and tasks>`` or ``n/a`` (exact counts)."""
+    ``yes``, ``no: <models and tasks>`` or ``n/a`` (exact counts); ``seeds_to_decide``: the seeds
+    per model at which that MDE reaches the paper's effect (:func:`seeds_needed`)."""
 
     dataset: str
     claim: str
@@ -176,6 +184,7 @@ class ClaimRow:
     seeds_per_model: tuple[int, ...] = ()
     mde: Optional[float] = None
     above_floor: str = FLOOR_NA
+    seeds_to_decide: str = ""
 
     @property
     def exact(self) -> bool:
@@ -219,6 +228,20 @@ def _seed_reasons(res: IntervalResult, rows: Sequence[str]) -> list[str]:
             for r, n, fixed in zip(rows, res.n_seeds, res.fixed) if not fixed and n < MIN_SEEDS]
 
 
+def seeds_needed(res: IntervalResult, paper: Optional[float], margin: Optional[float] = None) -> str:
+    """The scorecard's ``seeds_to_decide``: the seeds per model at which the row's design detects the
+    paper's effect with 80% power (:func:`~compact_perception.stats.seeds_to_decide`), ``>N`` where
+    even :data:`~compact_perception.stats.MAX_SEEDS_TO_DECIDE` seeds do not (the test episodes limit
+    it), empty where it cannot be said: no printed effect, a claim of equality (its margin, not an
+    effect, decides it), or a trained model with one seed (no seed variance to scale)."""
+    if paper is None or margin is not None or res.parts is None:
+        return ""
+    if not res.parts.seed or not all(math.isfinite(v) for v, _ in res.parts.seed):
+        return ""
+    n = seeds_to_decide(res, paper)
+    return str(n) if n is not None else f">{MAX_SEEDS_TO_DECIDE}"
+
+
 def _gate(ctx: _Context, uses: Sequence[tuple[str, Sequence[str]]]) -> tuple[str, Optional[str]]:
     """``above_floor`` of the models compared, each on the metrics the claim uses (``uses``:
     (row id, metrics)), and the reason the claim is not decidable because of it (``None``: every
@@ -244,7 +267,7 @@ def _decided(ctx: _Context, claim: str, statement: str, paper: Optional[float], 
     variant = MGN_FORMS.get(model, "") if claim in MGN_CLAIMS else ""
     return ClaimRow(ctx.dataset, claim, statement, paper, _opt(res.estimate), _opt(res.ci_low), _opt(res.ci_high),
                     min(res.n_seeds), res.n_frames or None, verdict_, margin, note, model, variant,
-                    tuple(res.n_seeds), _opt(res.mde), above)
+                    tuple(res.n_seeds), _opt(res.mde), above, seeds_needed(res, paper, margin))
 
 
 def _no_data(ds: str, claim: str, statement: str, paper: Optional[float], why: str, margin: Optional[float] = None,
@@ -553,7 +576,7 @@ def _md_row(r: ClaimRow) -> list[str]:
     stmt = r.statement + (f" (margin ±{r.margin:g})" if r.margin is not None else "")
     return [f"`{r.claim}`", DATASET_LABEL.get(r.dataset, r.dataset), r.variant, stmt,
             _f(r.paper, 3) if r.paper is not None else "not printed", _f(r.measured), ci,
-            "" if r.mde is None else f"{r.mde:.4f}", _seeds_text(r),
+            "" if r.mde is None else f"{r.mde:.4f}", r.seeds_to_decide, _seeds_text(r),
             "" if r.n_test_frames is None else str(r.n_test_frames), r.above_floor, f"**{r.verdict}**", r.note]
 
 
@@ -564,9 +587,9 @@ def _counts_text(counts: Mapping[str, int]) -> str:
 def claims_markdown(rows: list[ClaimRow], coverage: str = "") -> str:
     """The scorecard as Markdown: the verdict counts, the intervals' coverage line, the claims
     judged on test scores, Table III's exact counts apart, and the verdict rule."""
-    head = ["Claim", "Dataset", "MGN form", "Statement", "Paper", "Measured", "95% CI", "MDE (80%)", "Seeds",
-            "Test frames", "Above floor", "Verdict", "Note"]
-    align = ["---"] * 4 + ["---:"] * 6 + ["---"] * 3
+    head = ["Claim", "Dataset", "MGN form", "Statement", "Paper", "Measured", "95% CI", "MDE (80%)",
+            "Seeds to decide", "Seeds", "Test frames", "Above floor", "Verdict", "Note"]
+    align = ["---"] * 4 + ["---:"] * 7 + ["---"] * 3
     judged, exact = [r for r in rows if not r.exact], [r for r in rows if r.exact]
     counts = verdict_counts(rows)
     decided = sum(n for k, n in counts.items() if k != COUNT_KEYS[NOT_DECIDABLE])
@@ -589,9 +612,11 @@ def claims_markdown(rows: list[ClaimRow], coverage: str = "") -> str:
 
 def claims_csv(rows: list[ClaimRow]) -> str:
     header = ["dataset", "claim", "model", "variant", "statement", "paper", "measured", "ci_low", "ci_high", "mde",
-              "margin", "n_seeds", "seeds_per_model", "n_test_frames", "above_floor", "verdict", "note"]
+              "seeds_to_decide", "margin", "n_seeds", "seeds_per_model", "n_test_frames", "above_floor", "verdict",
+              "note"]
     return csv_text(header, [[r.dataset, r.claim, r.model, r.variant, r.statement, r.paper, r.measured, r.ci_low,
-                              r.ci_high, r.mde, r.margin, r.n_seeds, ";".join(map(str, r.seeds_per_model)),
+                              r.ci_high, r.mde, r.seeds_to_decide, r.margin, r.n_seeds,
+                              ";".join(map(str, r.seeds_per_model)),
                               r.n_test_frames, r.above_floor, r.verdict, r.note] for r in rows])
 
 

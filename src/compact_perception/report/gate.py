@@ -28,15 +28,16 @@ import math
 from dataclasses import dataclass, field
 from typing import Optional, Sequence
 
+import numpy as np
 import pandas as pd
 
 from ..floor import floor_of
-from ..stats import MIN_SEEDS, IntervalResult, interval
+from ..stats import MIN_SEEDS, IntervalResult, interval, stat_mean
 from .collect import ModelResult, ReportInputError, frame_comparison
 from .schema import FLOOR_IDS, METRIC_TASK, ROW_LABEL, TASK_COLUMNS, beats, column_stat, stat_columns
 
 __all__ = ["ABOVE", "BELOW", "UNSHOWN", "NO_FLOOR", "NO_DATA", "Margin", "DatasetFloor", "Gate", "status_of",
-           "failing_text"]
+           "failing_text", "margin_on_column"]
 
 ABOVE, BELOW, UNSHOWN = "above", "below", "not shown above"
 NO_FLOOR, NO_DATA = "no floor", "no data"
@@ -160,6 +161,23 @@ class Gate:
 
     def passes(self, row_id: str, metrics: Sequence[str] = TASK_COLUMNS) -> bool:
         return not self.failing(row_id, metrics)
+
+
+def margin_on_column(runs: Sequence[pd.DataFrame], floor_id: str, ref: pd.DataFrame, column: str,
+                     higher_is_better: bool) -> Margin:
+    """The margin over a trivial predictor's per-frame scores ``ref`` (a fixed group) of ``runs``
+    (one per seed) on one per-frame ``column`` of a metric beyond the paper's (an arg-max IoU, a
+    depth error), positive when better; frames where a run or the predictor has no value (a frame
+    without valid depth pixels) left out. The same interval and status rule as Table II's margins."""
+    if not runs or any(column not in df.columns for df in (*runs, ref)):
+        return Margin(column, NO_DATA, floor_id)
+    keep = [df[np.isfinite(df[column].to_numpy(dtype=float))] for df in (*runs, ref)]
+    try:
+        comp = frame_comparison([keep[:-1], [keep[-1]]], [column], fixed=(False, True))
+    except ReportInputError:
+        return Margin(column, NO_DATA, floor_id)
+    contrast = (lambda v: v[..., 0] - v[..., 1]) if higher_is_better else (lambda v: v[..., 1] - v[..., 0])
+    return Margin.of(column, floor_id, interval(comp, stat_mean, contrast))
 
 
 def failing_text(failing: Sequence[tuple[str, Sequence[Margin]]], labels: Optional[dict[str, str]] = None) -> str:

@@ -363,7 +363,7 @@ def write_tables(inp: ReportInputs, out_dir: Path, scale_name: str) -> tuple[Rep
     coverage = coverage_text({ds: inp.frames.get(ds, {}) for ds in claim_ds})
     lines = scale_lines(inp.scales, inp.paper, scale_name=scale_name, device=(inp.efficiency or {}).get("device", ""))
     floors = {ds: g.floor.results for ds, g in inp.gates.items() if g.floor is not None}
-    files = {**table2_files(t2), **extra_files(build_extra_rows(inp.results, floors)),
+    files = {**table2_files(t2), **extra_files(build_extra_rows(inp.results, floors, inp.gates)),
              **claims_files(claim_rows, coverage), **({} if t3 is None else table3_files(t3, inp.efficiency or {})),
              **comparison_files(inp.paper, t2, t3, lines)}
     parts = ReportParts(scale_name, inp.results, inp.scales, lines, files["table2.md"],

@@ -11,6 +11,7 @@ and the ego's left is on the left of the picture.
 from __future__ import annotations
 
 import logging
+import math
 from pathlib import Path
 from typing import Any, Mapping, Optional, Sequence
 
@@ -22,6 +23,7 @@ import numpy as np  # noqa: E402
 
 from ..core import io  # noqa: E402
 from ..core.classes import BEV_PALETTE, CARLA_PALETTE  # noqa: E402
+from ..core.depth import DEPTH_FAR_M, DEPTH_LOG_K  # noqa: E402
 
 log = logging.getLogger(__name__)
 
@@ -179,5 +181,23 @@ def plot_qualitative(dataset: str, inputs: Mapping[str, np.ndarray],
             show(axes[r, col_of[key]], img, titles[key] if r == 1 else "")
         axes[r, 0].set_ylabel(name, fontsize=8)
     fig.suptitle(title or f"{dataset}: test frame {fid}", fontsize=9)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0.0, 0.05, 1.0, 1.0))
+    _depth_scale(fig)
     return save_figure(fig, out_png, dpi=110)
+
+
+#: Depths (m) marked on the DE colour scale.
+DEPTH_TICKS_M: tuple[float, ...] = (DEPTH_FAR_M * math.exp(-DEPTH_LOG_K), 10.0, 30.0, 80.0, 300.0, DEPTH_FAR_M)
+
+
+def _depth_scale(fig: Any) -> None:
+    """The DE columns' grey scale under the grid: the cache's CARLA log depth x in [0, 1] shown
+    linearly (a prediction above 1 as white), ticked in metres (x = 1 + ln(d / 1000 m) / 5.70378)."""
+    import matplotlib as mpl
+
+    cax = fig.add_axes((0.30, 0.022, 0.40, 0.012))
+    sm = mpl.cm.ScalarMappable(norm=mpl.colors.Normalize(0.0, 1.0), cmap="gray")
+    bar = fig.colorbar(sm, cax=cax, orientation="horizontal")
+    bar.set_ticks([1.0 + math.log(d / DEPTH_FAR_M) / DEPTH_LOG_K for d in DEPTH_TICKS_M])
+    bar.set_ticklabels([f"{d:.3g}" if d < 10 else f"{d:.0f}" for d in DEPTH_TICKS_M], fontsize=6)
+    bar.set_label("DE: depth (m), log scale (CARLA log depth x; white: 1000 m far clip, sky, or x > 1)", fontsize=6)
