@@ -109,7 +109,8 @@ def actor_layers(vehicles: Iterable[Any], walkers: Iterable[Any], lights: Iterab
         name = _LIGHTS.get(_name(tl.get_state()))
         if name is None:  # Off or Unknown
             continue
-        for wp in tl.get_stop_waypoints():
+        stops = getattr(tl, "get_stop_waypoints", None)  # client 0.9.11+; without it no light is drawn
+        for wp in (stops() if stops else []):
             x, y, yaw = _pose(wp.transform)
             out.add(name, x, y, yaw, STOP_ZONE_M, float(wp.lane_width))
     return out
