@@ -313,3 +313,21 @@ def test_params_carla_source(params_dict, tmp_path):
     params_dict["datasets"]["B"]["carla"]["root"] = "recordings/B"
     path.write_text(yaml.safe_dump(params_dict))
     assert load_params(path).datasets.B.source == "carla"
+
+
+def test_generate_stage_with_source_carla(small_params, tmp_path):
+    from pipeline import generate
+
+    p = load_params(small_params)
+    collect(carla_fake.make_module(), p, "A", p.datasets.A.carla.root, "127.0.0.1", 2000)
+    d = yaml.safe_load(small_params.read_text())
+    d["datasets"]["A"]["source"] = "carla"
+    small_params.write_text(yaml.safe_dump(d))
+    out, figures = tmp_path / "raw", tmp_path / "figures"
+    assert generate.main(["--dataset", "A", "--params", str(small_params), "--out", str(out),
+                          "--figure-dir", str(figures)]) == 0
+    assert json.loads((out / "A" / "manifest.json").read_text())["source"] == "carla"
+    assert len(list((out / "A" / "frames").glob("*.npz"))) == 5 and (figures / "world_A.png").is_file()
+    (Path(p.datasets.A.carla.root) / "manifest.json").unlink()
+    with pytest.raises(SystemExit, match=r"^error: .*incomplete \(no manifest.json\)"):
+        generate.main(["--dataset", "A", "--params", str(small_params), "--out", str(out), "--figure-dir", str(figures)])
