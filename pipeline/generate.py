@@ -1,7 +1,9 @@
 """Stage generate@<ds>: render the simulated dataset A, B or C into data/raw/<ds>/ (SPEC 3.1).
 
 Thin wrapper: parse args, load params, call compact_perception.world.generate_dataset, then
-write the Fig. 1-like panel reports/figures/world_<ds>.png atomically.
+write the Fig. 1-like panel reports/figures/world_<ds>.png atomically. With ``source: authors``
+it checks the authors' release; with ``source: carla`` it checks the recording at
+``datasets.<ds>.carla.root`` (pipeline.collect_carla) and copies it into data/raw/<ds>.
 """
 from __future__ import annotations
 
@@ -37,6 +39,8 @@ def main(argv: list[str] | None = None) -> int:
         except RecordError as err:
             sys.exit(f"error: {err}")
         return 0
+    if dp.source == "carla":
+        return _carla(params, args.dataset, Path(args.out) / args.dataset, Path(args.figure_dir) / f"world_{args.dataset}.png")
     from compact_perception.world.figure import save_frame_figure
     from compact_perception.world.generate import generate_dataset, plan_episodes, render_episode
 
@@ -58,6 +62,30 @@ def main(argv: list[str] | None = None) -> int:
     except OSError as err:
         sys.exit(f"error: {os_error_line(err, figure)}")
     logging.getLogger("generate").info("wrote %s and the figure", out)
+    return 0
+
+
+def _carla(params, dataset_id: str, out: Path, figure: Path) -> int:
+    """source: carla: check the recording at datasets.<ds>.carla.root and copy it into ``out``."""
+    from compact_perception.carla.recording import import_recording
+    from compact_perception.core.errors import RecordError
+    from compact_perception.preprocess import load_record
+    from compact_perception.world.figure import save_frame_figure
+
+    root = getattr(params.datasets, dataset_id).carla.root
+    try:
+        manifest = import_recording(params, dataset_id, root, out)
+    except RecordError as err:
+        sys.exit(f"error: {err}")
+    except OSError as err:
+        sys.exit(f"error: {os_error_line(err, out)}")
+    fid = manifest["splits"]["test"][0]
+    rec = load_record(out / "frames" / f"{fid}.npz", fid)
+    try:
+        save_frame_figure(rec, figure, params.world.lidar.range_m, title=f"dataset {dataset_id}: CARLA, test frame {fid}")
+    except OSError as err:
+        sys.exit(f"error: {os_error_line(err, figure)}")
+    logging.getLogger("generate").info("copied the CARLA recording %s into %s", root, out)
     return 0
 
 

@@ -213,7 +213,7 @@ def preprocess_dataset(
     if ds is None or dataset_id == "nuscenes":
         raise RecordError(f"dataset {dataset_id!r}: not a simulated dataset (A, B or C); nuScenes has its own ingestion")
     out_dir = Path(cache_root) / dataset_id
-    if ds.source == "sim":
+    if ds.source in ("sim", "carla"):  # a CARLA recording is in data/raw/<ds> like the world's
         cache = preprocess_sim(Path(raw_root) / dataset_id, out_dir, dataset_id, params.preprocess)
     else:
         cache = ingest_authors(ds.authors_root, ds.authors_splits, out_dir, dataset_id,

@@ -154,6 +154,36 @@ class AuthorsSplits(Strict):
         return v
 
 
+class CarlaSource(Strict):
+    """A dataset recorded from a CARLA server (``source: carla``; docs/carla.md): what
+    ``python -m pipeline.collect_carla --dataset <ds>`` connects to and records, and the folder
+    it writes (``root``), which ``generate@<ds>`` validates and brings into ``data/raw/<ds>``.
+    The towns are the dataset's ``train_towns``/``eval_towns`` (town01 -> CARLA's Town01), the
+    frames and splits its ``frames``/``split_ratio``, the seed ``seed`` + ``seed_offset``, the
+    sensor rig ``world.camera``/``world.lidar``/``world.dvs`` at ``world.resolution``."""
+
+    root: str = Field(min_length=1, description="folder the collector writes (never data/raw/<ds>, a DVC output)")
+    host: str = Field(min_length=1, description="CARLA server address")
+    port: int = Field(ge=1, le=65535, description="CARLA server RPC port (CarlaUE4.sh -carla-rpc-port)")
+    timeout_s: float = Field(gt=0.0, le=600.0, description="connection timeout and each sensor's timeout per tick")
+    fixed_delta_s: float = Field(gt=0.0, le=0.5, description="synchronous simulation step; "
+                                 "world.dvs.step_s / fixed_delta_s ticks make one recorded frame")
+    frames_per_episode: int = Field(ge=1, le=10000, description="consecutive frames of one drive (episode length)")
+    warmup_ticks: int = Field(ge=0, le=10000, description="ticks driven before an episode's first frame")
+    vehicles: int = Field(ge=0, le=1000, description="traffic vehicles on the autopilot")
+    pedestrians: int = Field(ge=0, le=1000, description="pedestrians walking to random places")
+    times: list[Literal["morning", "noon", "evening", "night"]] = Field(min_length=1, description="drawn per episode")
+    weathers: list[Literal["sunny", "cloudy", "rainy", "foggy"]] = Field(min_length=1, description="drawn per episode")
+
+    @field_validator("root")
+    @classmethod
+    def _root(cls, v: str) -> str:
+        parts = Path(v).parts
+        if len(parts) >= 2 and parts[-2] == "raw" and "data" in parts[:-2]:
+            raise ValueError(f"{v!r} is inside data/raw, which generate writes; record elsewhere (e.g. data/carla/A)")
+        return v
+
+
 class SplitRatio(Strict):
     """Integer shares of the train / val / test splits (the paper's Table I: 3:1:1)."""
 
@@ -201,7 +231,7 @@ class TrainingBudget(Strict):
 class SimDatasetParams(Strict):
     """A simulated dataset (A, B, C): town splits of paper Table I."""
 
-    source: Literal["sim", "authors"]
+    source: Literal["sim", "authors", "carla"]
     authors_root: Optional[str] = Field(description="root of the authors' released dataset (source: authors); null otherwise")
     authors_splits: AuthorsSplits = Field(description="split folders used with source: authors (paper: "
                                           "A Tr1/Va2/Te2, B Tr2/Va1/Te1, C Tr12345/Va12345/Te12345)")
@@ -212,6 +242,7 @@ class SimDatasetParams(Strict):
     eval_towns: list[str]
     split_by: Literal["town", "episode"]
     seed_offset: int = Field(ge=0, description="added to the top-level seed for this dataset's episodes")
+    carla: CarlaSource = Field(description="the CARLA server and recording folder of source: carla")
     training: TrainingBudget
 
     @field_validator("train_towns", "eval_towns")

@@ -247,7 +247,7 @@ def generate_dataset(params: Params, dataset_id: str, out_dir: str | Path) -> Pa
             "dataset": dataset_id, "source": "sim", "resolution": S, "views": list(VIEWS), "splits": splits,
             "frames": frames, "seg_classes": list(CARLA_NAMES), "bev_classes": list(BEV_NAMES),
             "params": {"seed": params.seed, "scale": params.scale, "world": wp.model_dump(mode="json"),
-                       "dataset": dp.model_dump(mode="json", exclude={"training"})},
+                       "dataset": dp.model_dump(mode="json", exclude={"training", "carla"})},
         }
         io.write_json(tmp / "manifest.json", manifest)
     log.info("dataset %s written: %s", dataset_id, {k: len(v) for k, v in splits.items()})
