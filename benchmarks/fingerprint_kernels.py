@@ -23,7 +23,7 @@ losses (the recipe's DE loss form). Phases, each a dict of hashes (SHA-256, 16 h
   memory formats, shape) and how often, read from oneDNN's verbose log.
 
 ``--weights`` loads a training checkpoint's model state first: the authors' form parts two
-machines only after some training (README "Reproducibility"), so fingerprint both machines from a
+machines only after some training (docs/reproducibility.md), so fingerprint both machines from a
 checkpoint both have byte-identical (one of a model whose results agree, e.g. compact_15l).
 ``--compare`` prints, per model and phase, how many entries differ from a fingerprint recorded
 on another machine (entries missing on either side count) and the first one (in call order for

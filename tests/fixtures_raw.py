@@ -1,4 +1,4 @@
-"""Fabricated raw records and datasets in the exact layout of docs/ARCHITECTURE.md (no world needed)."""
+"""Fabricated raw records and datasets in the exact layout of docs/data-formats.md (no world needed)."""
 from __future__ import annotations
 
 import json

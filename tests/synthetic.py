@@ -1,4 +1,4 @@
-"""Synthetic model-ready caches for training/evaluation tests (layout: docs/ARCHITECTURE.md)."""
+"""Synthetic model-ready caches for training/evaluation tests (layout: docs/data-formats.md)."""
 from __future__ import annotations
 
 from pathlib import Path

@@ -4,12 +4,16 @@ stale figures).
 A quoted result is written with its source right after the number, in an HTML comment Markdown
 does not render: ``0.125<!-- quote e12ba38:results/C/gradnorm_segnet/seed0/metrics.json#iou_ss.mean -->``
 (a commit's file, read with ``git show``) or ``26<!-- quote reports/metrics.json#claims.reproduced -->``
-(the committed file in the working tree). The number must equal the value at the key path
+(the committed file in the working tree), or a cell of a committed CSV table:
+``1.887<!-- quote reports/tables/table2.csv#dataset=A,row_id=compact_1l:tm -->`` (the ``tm`` column of
+the one row whose ``dataset`` is ``A`` and ``row_id`` is ``compact_1l``). The number must equal the value at the key path
 (``.``-separated) to the number's printed decimals. The scorecard's verdict counts may only be
 quoted that way: a current figure is a pointer to the generated file or a checked quote.
 """
 from __future__ import annotations
 
+import csv
+import io
 import json
 import re
 import subprocess
@@ -37,7 +41,20 @@ def _git_show(commit: str, path: str) -> Optional[str]:
     return out.stdout if out.returncode == 0 else None
 
 
-def _lookup(text: str, key: str) -> Any:
+def _lookup_csv(text: str, key: str) -> Any:
+    """``col=value,col=value:column`` of a CSV: the ``column`` of the one row whose columns
+    have those values (``dataset=A,row_id=compact_1l:tm``)."""
+    where, column = key.rsplit(":", 1)
+    wanted = dict(part.split("=", 1) for part in where.split(","))
+    rows = [r for r in csv.DictReader(io.StringIO(text)) if all(r.get(k) == v for k, v in wanted.items())]
+    if len(rows) != 1:
+        raise KeyError(f"{len(rows)} rows match {where}")
+    return rows[0][column]
+
+
+def _lookup(text: str, key: str, path: str = "") -> Any:
+    if path.endswith(".csv"):
+        return _lookup_csv(text, key)
     value: Any = json.loads(text)
     for part in key.split("."):
         value = value[part]
@@ -55,7 +72,7 @@ def check_quotes(text: str, root: Path = ROOT) -> tuple[list[str], int]:
         if source is None:
             continue
         try:
-            value = float(_lookup(source, m["key"]))
+            value = float(_lookup(source, m["key"], m["path"]))
         except (ValueError, KeyError, TypeError):
             problems.append(f"{m['num']}: {where}: no number there")
             continue
@@ -109,3 +126,13 @@ def test_the_checker_fails_on_a_wrong_quote(tmp_path: Path) -> None:
         ["1: reports/metrics.json#claims.missing: no number there"]
     assert unmarked_counts("the scorecard: 26 reproduced, 24 contradicted, 44\ninconclusive") == \
         ["26 reproduced", "24 contradicted", "44\ninconclusive"]
+
+
+def test_a_csv_quote_is_checked_against_its_row_and_column(tmp_path: Path) -> None:
+    (tmp_path / "t.csv").write_text("dataset,row_id,tm\nA,m1,1.8867\nA,m2,1.8470\nB,m1,3.2\n")
+    assert check_quotes("1.887<!-- quote t.csv#dataset=A,row_id=m1:tm -->", tmp_path) == ([], 1)
+    assert check_quotes("1.85<!-- quote t.csv#dataset=A,row_id=m2:tm -->", tmp_path) == ([], 1)
+    assert check_quotes("1.88<!-- quote t.csv#dataset=A,row_id=m1:tm -->", tmp_path)[0] == \
+        ["1.88: t.csv#dataset=A,row_id=m1:tm is 1.8867"]
+    assert check_quotes("1.9<!-- quote t.csv#row_id=m1:tm -->", tmp_path)[0] == \
+        ["1.9: t.csv#row_id=m1:tm: no number there"]

@@ -12,14 +12,23 @@ Package map (one concern per module):
 - ``nuscenes``     the nuScenes-format export of the world and the nuScenes-lidarseg ingest
 - ``authors``      reading the authors' released CARLA dataset
 - ``dvs``/``lidar``/``preprocess`` the paper's preprocessing, eq. (1) and eq. (2)-(5)
+- ``figures_lidar`` the LiDAR preprocessing figure (Fig. 5-like)
 - ``data``         the PyTorch loader over the cache
 - ``models``       the compact model and the baselines, ``build_model(model_id, dataset_id)``
 - ``losses``/``metrics`` section III-B
-- ``weighting``    loss weighting: static, MGN (Algorithm 1), GradNorm, UW, DWA, PCGrad, CAGrad
-- ``training``     the training run (section IV-D): loop, lr schedule, provenance, precision, DDP
-- ``evaluate``/``study`` test scoring, the loss-balancing study
+- ``weighting``    loss weighting: static, none, MGN (Algorithm 1), GradNorm, UW, DWA, PCGrad,
+                   CAGrad, single-task
+- ``training``     the training run (section IV-D): loop, lr schedule, provenance, precision, DDP,
+                   a stage's runs side by side
+- ``plan``         which runs a dataset's stages hold (each model at its seeds, the study's arms)
+- ``floor``        the trivial-predictor floor: input-blind predictors fitted on the train split
+- ``stats``        intervals (seed-cluster-t), minimal detectable effects, the decidability rule
+- ``evaluate``     test scoring (floors, eq. (5) and arg-max scores, margins over the floor)
 - ``export``       ONNX export of a trained network and its check against PyTorch
-- ``report``       tables, figures, claims and the index
+- ``timing``       batch-1 inference timing of the benchmark's variants
+- ``report``       tables, figures, claims, the loss-balancing study's table, and the index
+
+docs/ARCHITECTURE.md has the same map with each module's concern in more detail.
 """
 
 __version__ = "0.1.0"
