@@ -11,6 +11,8 @@ Package map (one concern per module):
 - ``world``        the embedded procedural driving world (datasets A, B, C)
 - ``nuscenes``     the nuScenes-format export of the world and the nuScenes-lidarseg ingest
 - ``authors``      reading the authors' released CARLA dataset
+- ``carla``        recording sets from a CARLA server (optional ``carla`` client): the sensor rig,
+                   the sensors' buffer formats, BEV ground truth from the map, the resumable writer
 - ``dvs``/``lidar``/``preprocess`` the paper's preprocessing, eq. (1) and eq. (2)-(5)
 - ``figures_lidar`` the LiDAR preprocessing figure (Fig. 5-like)
 - ``data``         the PyTorch loader over the cache
