@@ -605,3 +605,35 @@ def test_report_of_a_subset_shows_no_number_of_an_unselected_dataset_or_model(tm
     assert runs and {r.split("/")[0] for r in runs} == {"A"} and {r.split("/")[1] for r in runs} <= set(chosen)
     t3 = list(csv.DictReader((out / "tables/table3.csv").open()))
     assert t3 and {r.get("dataset") or r.get("Dataset") for r in t3} <= {"A", "Set A"}
+
+
+def test_a_full_disk_while_the_report_writes_is_one_line_and_keeps_the_last_report(tmp_path: Path,
+                                                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    """OSError [Errno 28] from report/tables/formats.py was a traceback; now one line naming the
+    file, exit status 1, and the previous report is left as it was (the report is built aside)."""
+    import errno
+
+    import yaml
+
+    from compact_perception.report.tables import formats
+    from pipeline import report as report_stage
+    from repo_params import repo_params_dict
+
+    _tree(tmp_path, ("A",))
+    params = tmp_path / "params.yaml"
+    params.write_text(yaml.safe_dump(repo_params_dict()))
+    argv = ["--params", str(params), "--root", str(tmp_path), "--out", str(tmp_path / "reports")]
+    report_stage.main(argv)
+    before = {p: p.read_bytes() for p in (tmp_path / "reports").rglob("*") if p.is_file()}
+
+    def full(path, text):
+        raise OSError(errno.ENOSPC, "No space left on device", str(path))
+
+    monkeypatch.setattr(formats.io, "write_text", full)
+    with pytest.raises(SystemExit) as exc:
+        report_stage.main(argv)
+    msg = exc.value.code
+    assert isinstance(msg, str) and msg.startswith("error: ") and "\n" not in msg
+    assert msg.endswith("table2.md: could not write (No space left on device)"), msg
+    after = {p: p.read_bytes() for p in (tmp_path / "reports").rglob("*") if p.is_file()}
+    assert after == before and not list((tmp_path / "reports").glob(".report-*"))
