@@ -22,6 +22,7 @@ import torch
 
 from compact_perception.core import io
 from compact_perception.core.catalog import dataset_ids, model_ids, sim_dataset_ids
+from compact_perception.core.errors import os_error_line
 from compact_perception.models import DATASETS, build_model
 from compact_perception.report.efficiency import (CPU_MEMORY_METHOD, CUDA_MEMORY_METHOD, device_name,
                                                    dummy_batch, measure_fps, measure_model, measure_onnx)
@@ -54,26 +55,29 @@ def main(argv: list[str] | None = None) -> None:
         "batch_size": 1, "warmup": bp.warmup, "runs": bp.runs, "torch": torch.__version__,
         "memory_method": CUDA_MEMORY_METHOD if device.type == "cuda" else CPU_MEMORY_METHOD, "models": {},
     }
-    for ds in args.datasets:
-        spec = DATASETS[ds]
-        out["models"][ds] = {}
-        for m in args.models:
-            model = build_model(m, ds)
-            batch = dummy_batch(model, n_seg=spec.n_seg, has_dvs=spec.has_dvs, resolution=S,
-                                n_views=spec.n_views, device=device, seed=params.seed)
-            res = measure_model(model, batch, device, bp.warmup, bp.runs)
-            if m.startswith("compact") and not args.no_onnx:
-                cpu_ms = res["latency_ms"]
-                if device.type != "cpu":  # the ratio compares the two runtimes on the same CPU
-                    cpu_model, cpu_batch = model.to("cpu"), {k: v.cpu() for k, v in batch.items()}
-                    cpu_ms = measure_fps(cpu_model, cpu_batch, "cpu", bp.warmup, bp.runs)["latency_ms"]
-                    res["pytorch_cpu_latency_ms"] = cpu_ms
-                res.update(measure_onnx(model, batch, bp.warmup, bp.runs, pytorch_cpu_latency_ms=cpu_ms))
-            out["models"][ds][m] = res
-            del model, batch
-            if device.type == "cuda":
-                torch.cuda.empty_cache()
-    io.write_json(Path(args.out), out)
+    try:  # the ONNX export's temporary file, the output: a full disk or read-only folder is one line
+        for ds in args.datasets:
+            spec = DATASETS[ds]
+            out["models"][ds] = {}
+            for m in args.models:
+                model = build_model(m, ds)
+                batch = dummy_batch(model, n_seg=spec.n_seg, has_dvs=spec.has_dvs, resolution=S,
+                                    n_views=spec.n_views, device=device, seed=params.seed)
+                res = measure_model(model, batch, device, bp.warmup, bp.runs)
+                if m.startswith("compact") and not args.no_onnx:
+                    cpu_ms = res["latency_ms"]
+                    if device.type != "cpu":  # the ratio compares the two runtimes on the same CPU
+                        cpu_model, cpu_batch = model.to("cpu"), {k: v.cpu() for k, v in batch.items()}
+                        cpu_ms = measure_fps(cpu_model, cpu_batch, "cpu", bp.warmup, bp.runs)["latency_ms"]
+                        res["pytorch_cpu_latency_ms"] = cpu_ms
+                    res.update(measure_onnx(model, batch, bp.warmup, bp.runs, pytorch_cpu_latency_ms=cpu_ms))
+                out["models"][ds][m] = res
+                del model, batch
+                if device.type == "cuda":
+                    torch.cuda.empty_cache()
+        io.write_json(Path(args.out), out)
+    except OSError as err:
+        raise SystemExit(f"error: {os_error_line(err, args.out)}") from None
     log.info("wrote %s", args.out)
 
 

@@ -17,8 +17,11 @@ from typing import Mapping, Optional
 
 from compact_perception.core.cache import CacheError, read_split
 from compact_perception.core.catalog import MODELS, dataset_ids
-from compact_perception.core.errors import RunError
+from compact_perception.core import io
+from compact_perception.core.errors import RunError, os_error_line
+from compact_perception.core.layout import evaluation_folders, floor_paths
 from compact_perception.evaluate import evaluate_floors, evaluate_run, read_best
+from compact_perception.floor import TRIVIAL
 from compact_perception.plan import dataset_runs
 from compact_perception.training.parallel import Job, JobError, run_jobs
 
@@ -42,20 +45,25 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv)
     params = start(args.params)
     cache = Path("data/cache") / args.dataset
-    try:  # bad input (a truncated cache, no checkpoint): one line naming the file, exit 1, before any write
-        runs = dataset_runs(params, args.dataset)
+    try:  # bad input (a truncated cache, no checkpoint, a read-only results/): one line naming the file,
+        runs = dataset_runs(params, args.dataset)  # exit 1, before any write
         for split in ("train", "test"):
             read_split(cache, split)
         for r in runs:  # every checkpoint exists and reads safely (its tensors mapped, not read)
             read_best(r.dataset, r.model, r.paths.run_dir, mmap=True)
+        # the floor's and every run's results/ and data/eval/ folders: a read-only one stops it here
+        io.check_writable(*evaluation_folders([*(floor_paths(args.dataset, t) for t in TRIVIAL.keys()),
+                                               *(r.paths for r in runs)]))
         floor = evaluate_floors(args.dataset, cache, ".",
                                 save_predictions=params.evaluate.save_predictions, num_threads=params.train.num_threads,
                                 depth_max_m=params.evaluate.depth_max_m)
         jobs = [Job(r.name, (args.params, r.dataset, r.model, str(r.paths.run_dir), str(r.paths.metrics_path),
                              str(r.paths.eval_dir), r.arm, floor), cost=MODELS[r.model].epoch_cost) for r in runs]
         run_jobs(evaluate_one, jobs, params.train.parallel_runs, desc=f"evaluate {args.dataset}")
-    except (JobError, CacheError, RunError, FileNotFoundError) as err:
+    except (JobError, CacheError, RunError) as err:
         sys.exit(f"error: {err}")
+    except OSError as err:  # no checkpoint (its own message), a full disk, a read-only folder
+        sys.exit(f"error: {os_error_line(err, Path('results') / args.dataset)}")
 
 
 if __name__ == "__main__":

@@ -38,11 +38,13 @@ def main(argv: list[str] | None = None) -> int:
                                      resolution=params.world.resolution.at(params.scale), workers=params.world.workers)
         except RecordError as err:
             sys.exit(f"error: {err}")
+        except OSError as err:
+            sys.exit(f"error: {os_error_line(err, Path(args.out) / args.dataset)}")
         return 0
     if dp.source == "carla":
         return _carla(params, args.dataset, Path(args.out) / args.dataset, Path(args.figure_dir) / f"world_{args.dataset}.png")
     from compact_perception.world.figure import save_frame_figure
-    from compact_perception.world.generate import generate_dataset, plan_episodes, render_episode
+    from compact_perception.world.generate import generate_dataset, iter_episodes, render_episode
 
     try:
         out = generate_dataset(params, args.dataset, Path(args.out) / args.dataset)
@@ -50,7 +52,7 @@ def main(argv: list[str] | None = None) -> int:
         sys.exit(f"error: {err}")
     except OSError as err:  # a full disk: atomic_dir has removed the partial dataset
         sys.exit(f"error: {os_error_line(err, Path(args.out) / args.dataset)}")
-    ep = next(e for e in plan_episodes(params, args.dataset) if e["split"] == "test")
+    ep = next(e for e in iter_episodes(params, args.dataset) if e["split"] == "test")
     rec = None
     for rec in render_episode(params.world, ep["town"], ep["seed"], min(2, ep["frames"]),
                               params.world.resolution.at(params.scale), episode=ep["index"]):

@@ -12,6 +12,7 @@ import sys
 
 from ._common import start
 
+from compact_perception.core.errors import os_error_line
 from compact_perception.nuscenes.ingest import NuScenesInputError, ingest_from_params
 
 
@@ -26,6 +27,8 @@ def main(argv: list[str] | None = None) -> int:
         ingest_from_params(params, args.out, sim_root=args.sim_root)
     except NuScenesInputError as err:
         sys.exit(f"error: {err}")
+    except OSError as err:  # a full disk, a read-only data/cache/: the cache is written atomically
+        sys.exit(f"error: {os_error_line(err, args.out)}")
     return 0
 
 

@@ -15,6 +15,7 @@ import sys
 from ._common import start
 
 from compact_perception.core import io
+from compact_perception.core.errors import os_error_line
 from compact_perception.nuscenes import dataroot_problem
 from compact_perception.nuscenes.export import export_nuscenes_sim
 
@@ -32,11 +33,15 @@ def main(argv: list[str] | None = None) -> int:
         if problem:
             sys.exit(f"error: {args.params}: datasets.nuscenes.dataroot: {problem}")
         log.info("datasets.nuscenes.dataroot is set (%s): no simulated set written", ns.dataroot)
-        with io.atomic_dir(args.out) as tmp:
-            io.write_json(tmp / "manifest.json", {"source": "nuScenes-lidarseg", "dataroot": ns.dataroot,
-                                                  "version": ns.version})
-        return 0
-    export_nuscenes_sim(params, args.out)
+    try:
+        if ns.dataroot:
+            with io.atomic_dir(args.out) as tmp:
+                io.write_json(tmp / "manifest.json", {"source": "nuScenes-lidarseg", "dataroot": ns.dataroot,
+                                                      "version": ns.version})
+        else:
+            export_nuscenes_sim(params, args.out)
+    except OSError as err:  # a full disk, a read-only data/raw/: the dataroot is written atomically
+        sys.exit(f"error: {os_error_line(err, args.out)}")
     return 0
 
 

@@ -1,15 +1,19 @@
 """DVC stage report: tables, figures, plots data, the headline metrics and reports/index.md
-from every run's outputs.
+from the outputs of the runs the params select.
 
     python -m pipeline.report [--params params.yaml] [--out reports]
 
-Reads, for every run of the seeds params.yaml lists (``datasets.<ds>.training.seeds`` for the
-compact models, ``baseline_seeds`` for the baselines; seed folders of other seeds are ignored):
+Reads, for the datasets of ``dataset_ids`` and the models of ``model_ids`` only (a dataset or
+model left out is absent from every table, figure and the headline; ``results/`` files of another
+run's datasets are not read; compact_perception.report.selection), every run of the seeds
+params.yaml lists (``datasets.<ds>.training.seeds`` for the compact models, ``baseline_seeds``
+for the baselines; seed folders of other seeds are ignored):
 results/<ds>/<model>/seed<k>/metrics.json, data/eval/<ds>/<model>/seed<k>/{per_frame.csv, *.npz},
 runs/<ds>/<model>/seed<k>/{summary.json, live/plots/metrics/*.tsv}; and
-results/benchmark/efficiency.json, data/cache/<ds>/meta.json. Writes reports/index.md,
-reports/metrics.json, reports/tables/, reports/figures/report/ and reports/plots/, atomically
-(compact_perception.report.index.build_reports).
+results/benchmark/efficiency.json (the selected models), data/cache/<ds>/meta.json. Writes
+reports/index.md, reports/metrics.json, reports/tables/, reports/figures/report/ and
+reports/plots/, atomically (compact_perception.report.index.build_reports); a failed read or
+write (a full disk, a read-only folder) is one line naming the file.
 """
 from __future__ import annotations
 
@@ -18,18 +22,18 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from compact_perception.core.catalog import MODELS, dataset_ids, model_ids
+from compact_perception.core.errors import os_error_line
 from compact_perception.report.collect import ReportInputError
 from compact_perception.report.index import build_reports
+from compact_perception.report.selection import select
 
 from ._common import start
 
 
 def seed_lists(params: Any) -> dict[str, dict[str, list[int]]]:
-    """The training seeds of every model on every dataset (``Params.seeds_of``: the dataset's
-    ``training.seeds`` for a compact model, ``baseline_seeds`` for a baseline)."""
-    return {ds: {m: [int(k) for k in params.seeds_of(MODELS[m].group, ds)] for m in model_ids()}
-            for ds in dataset_ids()}
+    """The training seeds of every selected model on every selected dataset (``Params.seeds_of``:
+    the dataset's ``training.seeds`` for a compact model, ``baseline_seeds`` for a baseline)."""
+    return select(params).seeds
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -39,12 +43,15 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--out", default="reports")
     args = ap.parse_args(argv)
     params = start(args.params)
+    chosen = select(params)
     try:
-        build_reports(Path(args.root), Path(args.out), datasets=dataset_ids(), models=model_ids(),
+        build_reports(Path(args.root), Path(args.out), datasets=chosen.datasets, models=chosen.models,
                       scale_name=params.scale, figure_frame=params.evaluate.figure_frame,
-                      seeds=seed_lists(params), study=params)
+                      seeds=chosen.seeds, study=chosen.study)
     except ReportInputError as err:
         sys.exit(f"error: {err}")
+    except OSError as err:  # a full disk, a read-only reports/: the previous report stays in place
+        sys.exit(f"error: {os_error_line(err, args.out)}")
 
 
 if __name__ == "__main__":

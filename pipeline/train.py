@@ -19,7 +19,7 @@ from typing import Optional
 from compact_perception.core.cache import CacheError
 from compact_perception.core.catalog import dataset_ids, model_ids
 from compact_perception.core.config import ParamsError
-from compact_perception.core.errors import RunError
+from compact_perception.core.errors import RunError, os_error_line
 from compact_perception.plan import PlannedRun, dataset_runs, recipe_of
 from compact_perception.training.parallel import Job, JobError, run_jobs
 from compact_perception.training.train import train_run
@@ -79,6 +79,8 @@ def main(argv: list[str] | None = None) -> None:
         done = run_jobs(train_one, jobs, 1 if alone else params.train.parallel_runs, desc=f"train {args.dataset}")
     except (JobError, RunError, CacheError, ParamsError) as err:
         sys.exit(f"error: {err}")
+    except OSError as err:  # a full disk, a read-only runs/ (a run's own writes say RunError)
+        sys.exit(f"error: {os_error_line(err, Path('runs') / args.dataset)}")
     for r, facts in zip(runs, done):
         log.info("%s: %s epochs (best %s), stopped by %s", r.name, facts["epochs_run"], facts["best_epoch"],
                  facts["stop_reason"])

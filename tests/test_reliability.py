@@ -6,6 +6,7 @@ and leaves nothing half-written.
 """
 from __future__ import annotations
 
+import errno
 import hashlib
 import os
 import re
@@ -325,4 +326,181 @@ def test_a_python_tag_in_data_info_is_rejected_unrun(copy, tmp_path):
     fx.replace(info, lambda p: p.write_text(text))
     msg = stage_error("preprocess", write_params(repo_params_dict(), tmp_path, copy), tmp_path)
     assert msg.startswith(f"error: {info}: not valid YAML (") and "python/object/apply" in msg, msg
+    assert not marker.exists()
+
+
+# ----------------------------------------------------------------------------- issue 26: storms, stalls, tracebacks
+def _set(d: dict, dotted: str, value) -> dict:
+    node = d
+    *head, last = dotted.split(".")
+    for k in head:
+        node = node[k]
+    node[last] = value
+    return d
+
+
+def test_a_billion_frames_is_refused_at_once_naming_the_bound(tmp_path, monkeypatch):
+    """``datasets.A.frames: 1000000000`` made generate build one dict per episode (680 MB after 40 s)."""
+    import time
+
+    from pipeline.generate import main
+
+    params = _params_file(tmp_path, _set(repo_params_dict(), "datasets.A.frames.default", 1_000_000_000))
+    monkeypatch.chdir(tmp_path)
+    t0 = time.perf_counter()
+    msg = _exit_message(main, ["--dataset", "A", "--params", str(params), "--out", "raw", "--figure-dir", "figs"])
+    assert time.perf_counter() - t0 < 10
+    assert msg == f"error: {params}: datasets.A.frames: default: 1000000000 exceeds 1000000 (frames a dataset may have)"
+    assert _files(tmp_path) == {Path("params.yaml")}
+
+
+@pytest.mark.parametrize("key, value, bound", [
+    ("train.num_workers", 1000, "256"),              # the process storm of issue 26
+    ("train.parallel_runs", 1000, "256"),
+    ("train.num_threads", 1000, "256"),
+    ("world.workers", 1000, "256"),
+    ("preprocess.workers", 1000, "256"),
+    ("train.batch_size", 100_000, "1024"),
+    ("world.frames_per_episode", 100_000, "10000"),
+    ("world.resolution.full", 4096, "1024"),
+    ("datasets.nuscenes.sim_samples_per_scene", 1000, "100"),
+    ("datasets.nuscenes.sim_scenes.paper", 10_000_000, "10000"),
+    ("datasets.C.frames.paper", 2_000_000, "1000000"),
+    ("evaluate.save_predictions", 10_000_000, "10000"),
+])
+def test_every_count_that_sizes_memory_processes_or_disk_has_an_upper_bound(key, value, bound):
+    with pytest.raises(ParamsError) as exc:
+        parse_params(_set(repo_params_dict(), key, value))
+    msg = str(exc.value)
+    parent = key.rsplit(".", 1)[0] if key.endswith((".full", ".paper", ".default")) else key
+    assert f": {parent}: " in msg and bound in msg and str(value) in msg, msg
+
+
+def test_generation_plans_its_episodes_lazily():
+    """The most episodes the schema allows (1e6 frames, one per episode) start at once, and the lazy
+    plan is the list plan, episode for episode (the same seeds, towns and order: the same bytes)."""
+    import itertools
+    import time
+
+    from compact_perception.world import generate as gen
+
+    d = _set(repo_params_dict(), "datasets.A.frames.default", 1_000_000)
+    d["world"]["frames_per_episode"] = 1
+    huge = parse_params(d)
+    t0 = time.perf_counter()
+    first = list(itertools.islice(gen.iter_episodes(huge, "A"), 3))
+    assert time.perf_counter() - t0 < 1 and [e["index"] for e in first] == [0, 1, 2]
+    assert gen.episode_count(huge, "A") == (1_000_000, 1_000_000)
+    for ds in ("A", "B", "C"):
+        p = parse_params(repo_params_dict())
+        plan = gen.plan_episodes(p, ds)
+        assert list(gen.iter_episodes(p, ds)) == plan
+        assert gen.episode_count(p, ds) == (sum(e["frames"] for e in plan), len(plan))
+
+
+def test_a_params_file_too_large_is_refused_at_once(tmp_path):
+    """A 50 MB params file took 376 s to reach its error; anything over 1 MiB is refused unread."""
+    import time
+
+    from compact_perception.core.config import MAX_PARAMS_BYTES
+    from pipeline.nuscenes_sim import main
+
+    path = tmp_path / "params.yaml"
+    path.write_text(yaml.safe_dump(repo_params_dict()) + "# " + "x" * (2 * MAX_PARAMS_BYTES) + "\n")
+    t0 = time.perf_counter()
+    msg = _exit_message(main, ["--params", str(path), "--out", str(tmp_path / "out")])
+    assert time.perf_counter() - t0 < 5
+    assert msg == f"error: {path}: {path.stat().st_size} bytes, too large for a params file (at most {MAX_PARAMS_BYTES})"
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_params_file_that_is_not_utf8_is_one_line(tmp_path):
+    from pipeline.nuscenes_sim import main
+
+    text = yaml.safe_dump(repo_params_dict()).encode()
+    path = tmp_path / "params.yaml"
+    path.write_bytes(b"# caf\xe9\n" + text)            # Latin-1, not UTF-8
+    msg = _exit_message(main, ["--params", str(path), "--out", str(tmp_path / "out")])
+    assert msg == f"error: {path}: not UTF-8 text (byte 0xe9 at line 1)"
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("err", [errno.EACCES, errno.EROFS])
+@pytest.mark.parametrize("folder", ["results", "data/eval"])
+def test_evaluate_checks_it_can_write_before_it_writes(tmp_path, monkeypatch, err, folder):
+    """A read-only results/ gave a PermissionError traceback after data/eval/ had been rewritten.
+    (Tests run as root, whom chmod does not stop: the OS's refusal is simulated where files are made.)"""
+    from compact_perception.core import io as cio
+    from pipeline.evaluate import main
+
+    root = _eval_tree(tmp_path)
+    real = cio.tempfile.mkstemp
+
+    def refuse(*a, dir=None, **k):
+        if dir is not None and Path(dir).resolve().is_relative_to((root / folder).resolve()):
+            raise OSError(err, os.strerror(err), str(dir))
+        return real(*a, dir=dir, **k)
+
+    (root / folder / "A").mkdir(parents=True)            # the folder is there, read-only
+    monkeypatch.setattr(cio.tempfile, "mkstemp", refuse)
+    before = {p: p.stat().st_mtime_ns for p in root.rglob("*")}
+    monkeypatch.chdir(root)
+    msg = _exit_message(main, ["--dataset", "A", "--params", "params.yaml"])
+    assert msg == f"error: {folder}/A/floor_pixel: could not write ({os.strerror(err)})", msg
+    assert {p: p.stat().st_mtime_ns for p in root.rglob("*")} == before   # nothing new, nothing rewritten
+
+
+def _readonly(*_a, **_k):
+    raise OSError(errno.EROFS, os.strerror(errno.EROFS), "out/file")
+
+
+@pytest.mark.parametrize("stage, target, argv", [
+    ("generate", "compact_perception.world.generate.generate_dataset", ["--dataset", "A"]),
+    ("preprocess", "pipeline.preprocess.preprocess_dataset", ["--dataset", "A"]),
+    ("nuscenes_sim", "pipeline.nuscenes_sim.export_nuscenes_sim", []),
+    ("ingest_nuscenes", "pipeline.ingest_nuscenes.ingest_from_params", []),
+    ("train", "pipeline.train.run_jobs", ["--dataset", "A"]),
+    ("evaluate", "pipeline.evaluate.evaluate_floors", ["--dataset", "A"]),
+    ("report", "pipeline.report.build_reports", []),
+    ("benchmark", "compact_perception.core.io.write_json",
+     ["--datasets", "A", "--models", "compact_1l", "--no-onnx"]),
+])
+def test_every_stage_turns_a_failed_write_into_one_line(tmp_path, monkeypatch, stage, target, argv):
+    """A read-only file system (or a full disk) in any stage: one line with the path, exit status 1."""
+    import importlib
+
+    if stage == "evaluate":
+        _eval_tree(tmp_path)
+        params = tmp_path / "params.yaml"
+    else:
+        d = repo_params_dict()
+        d["benchmark"].update(warmup=0, runs=3)
+        d["train"]["device"] = "cpu"
+        params = _params_file(tmp_path, d)
+    monkeypatch.chdir(tmp_path)
+    module, name = target.rsplit(".", 1)
+    monkeypatch.setattr(importlib.import_module(module), name, _readonly)
+    main = importlib.import_module(f"pipeline.{stage}").main
+    msg = _exit_message(main, [*argv, "--params", str(params)])
+    assert msg == f"error: out/file: could not write ({os.strerror(errno.EROFS)})"
+
+
+@pytest.mark.parametrize("reader", ["read_best", "read_checkpoint", "load_resumable", "mark_finished"])
+def test_no_checkpoint_error_advises_an_unsafe_load(tmp_path, reader):
+    """Evaluate's line used to repeat torch's advice to re-run torch.load with weights_only=False."""
+    from compact_perception.evaluate import read_best
+    from compact_perception.training import checkpoint
+
+    marker = tmp_path / "marker"
+    path = _crafted(tmp_path / "best.pt", marker, digest="d", epoch=0)
+    call = {"read_best": lambda: read_best("A", MODEL, tmp_path),
+            "read_checkpoint": lambda: checkpoint.read_checkpoint(path),
+            "load_resumable": lambda: checkpoint.load_resumable(path, "d", torch.device("cpu")),
+            "mark_finished": lambda: checkpoint.mark_finished(path)}[reader]
+    with pytest.raises(RunError) as exc:
+        call()
+    msg = str(exc.value)
+    assert "it holds more than tensors and plain data, not loaded: unsupported GLOBAL" in msg, msg
+    for advice in ("weights_only", "safe_globals", "trusted", "arbitrary code", "Re-running"):
+        assert advice not in msg, msg
     assert not marker.exists()

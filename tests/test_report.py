@@ -557,3 +557,83 @@ def test_table2_mv_is_the_mv_of_the_means_for_every_row(tmp_path: Path) -> None:
     means = {c: stale[c]["mean"] for c in TASK_COLUMNS}
     assert rows["compact_1l"].cells["mv"].mean == pytest.approx(scores_from_means(means)["mv"], abs=1e-15)
     assert rows["compact_1l"].cells["tm"].mean == pytest.approx(scores_from_means(means)["tm"], abs=1e-15)
+
+
+# ----------------------------------------------------------------------------- what the params selected
+def test_report_of_a_subset_shows_no_number_of_an_unselected_dataset_or_model(tmp_path: Path) -> None:
+    """sim_ids [A], dataset_ids [A] and two models (the README's way to run a subset): results/ still
+    holds set B's and nuScenes' files of an earlier full run (as git tracks them), with scores no set A
+    run has; none of them, and no unselected model, reaches a table, a figure, the plots or the headline."""
+    import yaml
+
+    from pipeline import report as report_stage
+    from repo_params import repo_params_dict
+
+    _tree(tmp_path, ("A",))
+    stale = bases_with(**{m: {"mae_de": 0.0777, "iou_ss": 0.7777, "iou_ls": 0.7777, "iou_bevp": 0.7777}
+                          for m in MODELS})                  # 0.7777: a number only the other run's files hold
+    build_tree(tmp_path, ("B", "nuscenes"), n_frames=N_FRAMES, bases=stale, noise=0.0)
+    _tree(tmp_path, ("A",))                                  # efficiency.json as the benchmark writes it, ...
+    eff_path = tmp_path / "results/benchmark/efficiency.json"
+    effj = json.loads(eff_path.read_text())
+    effj["models"]["nuscenes"] = {m: dict(v, params=777_777) for m, v in effj["models"]["A"].items()}
+    write_json(eff_path, effj)                               # ... with nuScenes' networks measured too
+    chosen = ["compact_15l_mgn_authors", "compact_1l"]
+    d = repo_params_dict()
+    d.update(sim_ids=["A"], dataset_ids=["A"], model_ids=chosen)
+    params = tmp_path / "params.yaml"
+    params.write_text(yaml.safe_dump(d))
+    report_stage.main(["--params", str(params), "--root", str(tmp_path), "--out", str(tmp_path / "reports")])
+    out = tmp_path / "reports"
+    head = json.loads((out / "metrics.json").read_text())
+    assert list(head["tm_mgn_authors"]) == ["A"]             # the headline: set A only
+    assert set(head.get("tm_margin_A", {})) <= set(chosen)
+    files = [p for p in out.rglob("*") if p.is_file()]
+    assert files and not [p for p in files if "nuscenes" in p.name or "_B." in p.name]
+    for p in files:
+        if p.suffix in (".md", ".csv", ".tex", ".json"):
+            text = p.read_text()
+            assert "0.7777" not in text and "0.777" not in text and "777,777" not in text and "777777" not in text, p
+    index = (out / "index.md").read_text()
+    for label in ("nuScenes", "Set B", "Set C"):               # no row, no figure section, no headline entry
+        assert not [line for line in index.splitlines() if line.startswith((f"| {label}", f"### {label}"))], label
+        assert f"{label} 0." not in index and f"{label} (floor" not in index
+    t2 = list(csv.DictReader((out / "tables/table2.csv").open()))
+    assert {r["dataset"] for r in t2} == {"A"}
+    assert {r["row_id"] for r in t2 if r["available"] in ("1", "True", "true")} <= {*chosen, *FLOORS}
+    runs = {r["run"] for r in csv.DictReader((out / "plots/val_tm.csv").open())}
+    assert runs and {r.split("/")[0] for r in runs} == {"A"} and {r.split("/")[1] for r in runs} <= set(chosen)
+    t3 = list(csv.DictReader((out / "tables/table3.csv").open()))
+    assert t3 and {r.get("dataset") or r.get("Dataset") for r in t3} <= {"A", "Set A"}
+
+
+def test_a_full_disk_while_the_report_writes_is_one_line_and_keeps_the_last_report(tmp_path: Path,
+                                                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    """OSError [Errno 28] from report/tables/formats.py was a traceback; now one line naming the
+    file, exit status 1, and the previous report is left as it was (the report is built aside)."""
+    import errno
+
+    import yaml
+
+    from compact_perception.report.tables import formats
+    from pipeline import report as report_stage
+    from repo_params import repo_params_dict
+
+    _tree(tmp_path, ("A",))
+    params = tmp_path / "params.yaml"
+    params.write_text(yaml.safe_dump(repo_params_dict()))
+    argv = ["--params", str(params), "--root", str(tmp_path), "--out", str(tmp_path / "reports")]
+    report_stage.main(argv)
+    before = {p: p.read_bytes() for p in (tmp_path / "reports").rglob("*") if p.is_file()}
+
+    def full(path, text):
+        raise OSError(errno.ENOSPC, "No space left on device", str(path))
+
+    monkeypatch.setattr(formats.io, "write_text", full)
+    with pytest.raises(SystemExit) as exc:
+        report_stage.main(argv)
+    msg = exc.value.code
+    assert isinstance(msg, str) and msg.startswith("error: ") and "\n" not in msg
+    assert msg.endswith("table2.md: could not write (No space left on device)"), msg
+    after = {p: p.read_bytes() for p in (tmp_path / "reports").rglob("*") if p.is_file()}
+    assert after == before and not list((tmp_path / "reports").glob(".report-*"))

@@ -27,7 +27,7 @@ from tqdm.auto import tqdm
 
 from .core import catalog, io
 from .core.cache import read_meta, read_split
-from .core.errors import RunError
+from .core.errors import RunError, checkpoint_load_reason
 from .core.layout import floor_paths
 from .core.depth import DEPTH_FAR_M, DEPTH_LOG_K
 from .data import make_loader, to_device
@@ -186,7 +186,7 @@ def read_best(dataset_id: str, model_id: str, run_dir: Path, *, mmap: bool = Fal
         checkpoint = torch.load(best, map_location="cpu", weights_only=True, mmap=mmap)
     except (RuntimeError, ValueError, AttributeError, pickle.UnpicklingError, EOFError) as err:
         raise RunError(f"{best}: not a checkpoint of {model_id} on {dataset_id} "
-                       f"({' '.join(str(err).split())[:200]})") from None
+                       f"({checkpoint_load_reason(err)})") from None
     if not isinstance(checkpoint, dict) or "model" not in checkpoint:
         raise RunError(f"{best}: not a checkpoint of {model_id} on {dataset_id} (no 'model' state)")
     return checkpoint

@@ -75,6 +75,26 @@ def _scaled_at_least(v: Optional[Scaled[int]], lo: int) -> Optional[Scaled[int]]
     return v
 
 
+def _scaled_at_most(v: Optional[Scaled[int]], hi: int, why: str) -> Optional[Scaled[int]]:
+    """Every scale of an integer :class:`Scaled` count that sizes memory, processes or disk is
+    ``<= hi``: ``default: 1000000000 exceeds 1000000 (<why>)``, before any work starts."""
+    if v is not None:
+        for name in SCALES:
+            if getattr(v, name) > hi:
+                raise PydanticCustomError("too_large", "{scale}: {value} exceeds {hi} ({why})",
+                                          {"scale": name, "value": getattr(v, name), "hi": hi, "why": why})
+    return v
+
+
+#: Upper bounds of the counts that size memory, processes or disk (issue 26): far above every
+#: scale's value (the paper's 10000 frames, 850 scenes, batch 6), far below what exhausts a machine.
+MAX_FRAMES = 1_000_000
+MAX_SCENES = 10_000
+MAX_WORKERS = 256
+MAX_BATCH = 1024
+MAX_SAVED_PREDICTIONS = 10_000
+
+
 # ----------------------------------------------------------------------------- world
 class CameraParams(Strict):
     """RGB/DVS/semantic/depth cameras (paper section IV-A, Fig. 4)."""
@@ -122,7 +142,7 @@ class WorldParams(Strict):
     dvs: DvsParams
     conditions: ConditionParams
     frames_per_episode: int = Field(ge=1, le=10000, description="consecutive frames of one drive (a 'scene')")
-    workers: int = Field(ge=1, le=256, description="generator processes: any count gives the same files")
+    workers: int = Field(ge=1, le=MAX_WORKERS, description="generator processes: any count gives the same files")
 
     @field_validator("resolution")
     @classmethod
@@ -258,6 +278,7 @@ class SimDatasetParams(Strict):
     @field_validator("frames")
     @classmethod
     def _frames(cls, v: Scaled[int]) -> Scaled[int]:
+        _scaled_at_most(v, MAX_FRAMES, "frames a dataset may have")
         return _scaled_at_least(v, 5)  # one frame per split at least
 
     @model_validator(mode="after")
@@ -280,6 +301,7 @@ class NuScenesParams(Strict):
     @field_validator("sim_scenes")
     @classmethod
     def _scenes(cls, v: Scaled[int]) -> Scaled[int]:
+        _scaled_at_most(v, MAX_SCENES, "simulated scenes a dataset may have")
         return _scaled_at_least(v, 3)  # one scene per split at least
 
 
@@ -299,7 +321,7 @@ class PreprocessParams(Strict):
     z_max_m: float
     height_multiplier: int = Field(ge=1, le=64, description="eq. (5): channels 0..multiplier")
     fill_neighbours: bool
-    workers: int = Field(ge=1, le=256, description="preprocessing processes: any count gives the same cache")
+    workers: int = Field(ge=1, le=MAX_WORKERS, description="preprocessing processes: any count gives the same cache")
 
     @model_validator(mode="after")
     def _z(self) -> "PreprocessParams":
@@ -451,18 +473,18 @@ class ModelRecipe(Strict):
 class TrainParams(Strict):
     """Section IV-D: batch 6, SGD, plateau halving, early stop, best checkpoint."""
 
-    batch_size: int = Field(ge=1)
+    batch_size: int = Field(ge=1, le=MAX_BATCH)
     plateau_patience: int = Field(ge=1)
     plateau_factor: float = Field(gt=0.0, lt=1.0)
     plateau_threshold: float = Field(ge=0.0, lt=1.0, description="relative improvement the 'torch' plateau "
                                      "rule requires (ReduceLROnPlateau's threshold, mode 'rel')")
     early_stop_patience: Scaled[int] = Field(description="epochs without a new best validation score "
                                              "that end a run (section IV-D: 25)")
-    num_workers: int = Field(ge=0, description="loader processes: any count gives the same result")
-    parallel_runs: int = Field(ge=1, le=256, description="runs a stage trains side by side, each in its own "
+    num_workers: int = Field(ge=0, le=MAX_WORKERS, description="loader processes: any count gives the same result")
+    parallel_runs: int = Field(ge=1, le=MAX_WORKERS, description="runs a stage trains side by side, each in its own "
                                "process with num_threads threads (training/parallel.py): any count gives the "
                                "same result")
-    num_threads: int = Field(ge=1, le=256, description="torch intra-op threads: a threaded reduction's "
+    num_threads: int = Field(ge=1, le=MAX_WORKERS, description="torch intra-op threads: a threaded reduction's "
                              "result depends on the count, so it is a tracked param (determinism.set_threads)")
     device: Literal["auto", "cpu", "cuda"]
     precision: Literal["fp32", "bf16", "fp16", "auto"] = Field(
@@ -546,7 +568,7 @@ class StudyParams(Strict):
 
 class EvalParams(Strict):
     figure_frame: int = Field(ge=0, description="test frame shown in the qualitative figures")
-    save_predictions: int = Field(ge=0, description="test frames whose predictions are saved")
+    save_predictions: int = Field(ge=0, le=MAX_SAVED_PREDICTIONS, description="test frames whose predictions are saved")
     depth_max_m: float = Field(gt=3.34, le=1000.0, description="metric-depth evaluation: ground truth capped at this "
                                "depth (m) and predictions clamped to it (the field's convention: 80 m)")
 
@@ -723,16 +745,43 @@ class UniqueKeyLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep=deep)
 
 
+#: A params file larger than this is not a params file (params.yaml is ~20 kB): refused at once,
+#: before YAML reads it (a 50 MB file took minutes to reach its error).
+MAX_PARAMS_BYTES = 1 << 20
+
+
+def _params_text(path: Path) -> str:
+    """The text of params file ``path``: :class:`ParamsError` for a file that is missing, too
+    large (:data:`MAX_PARAMS_BYTES`), unreadable or not UTF-8, naming the file."""
+    try:
+        if not path.is_file():
+            raise ParamsError(f"{path}: file not found")
+        size = path.stat().st_size
+        if size > MAX_PARAMS_BYTES:
+            raise ParamsError(f"{path}: {size} bytes, too large for a params file (at most {MAX_PARAMS_BYTES})")
+        raw = path.read_bytes()[:MAX_PARAMS_BYTES + 1]
+    except OSError as err:
+        raise ParamsError(f"{path}: could not read ({err.strerror or err})") from None
+    if len(raw) > MAX_PARAMS_BYTES:  # grew since stat
+        raise ParamsError(f"{path}: too large for a params file (at most {MAX_PARAMS_BYTES} bytes)")
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as err:
+        line = raw[:err.start].count(b"\n") + 1
+        raise ParamsError(f"{path}: not UTF-8 text (byte 0x{raw[err.start]:02x} at line {line})") from None
+
+
 def load_params(path: str | Path = "params.yaml") -> Params:
-    """Read and validate params.yaml (a key written twice in one mapping is an error)."""
+    """Read and validate params.yaml (a key written twice in one mapping is an error; a file
+    that is not UTF-8 or larger than :data:`MAX_PARAMS_BYTES` is refused before YAML reads it)."""
     path = Path(path)
-    if not path.is_file():
-        raise ParamsError(f"{path}: file not found")
-    with path.open() as fh:
-        try:
-            data = yaml.load(fh, Loader=UniqueKeyLoader)
-        except DuplicateKeyError as err:
-            raise ParamsError(f"{path}: {err}") from None
-        except yaml.YAMLError as err:
-            raise ParamsError(f"{path}: not valid YAML: {_one_line(err)}") from None
+    text = _params_text(path)
+    try:
+        data = yaml.load(text, Loader=UniqueKeyLoader)
+    except DuplicateKeyError as err:
+        raise ParamsError(f"{path}: {err}") from None
+    except yaml.YAMLError as err:
+        raise ParamsError(f"{path}: not valid YAML: {_one_line(err)}") from None
+    except RecursionError:
+        raise ParamsError(f"{path}: not valid YAML: nested too deeply") from None
     return parse_params(data, str(path))

@@ -1,5 +1,8 @@
-"""Error classes shared across modules (no imports, so no import cycles)."""
+"""Error classes shared across modules (no imports of this package, so no import cycles)."""
 from __future__ import annotations
+
+import pickle
+import re
 
 
 class RecordError(ValueError):
@@ -10,7 +13,29 @@ class RunError(RuntimeError):
     """A run cannot start or cannot save (bad input, a full disk); the message names the file or key."""
 
 
-def os_error_line(err: OSError, where: object) -> str:
+def os_error_line(err: OSError, where: object, doing: str = "write") -> str:
     """One line for a failed read or write (a full disk, a read-only folder): the file the OS
-    names, else ``where``, and the OS's reason (``No space left on device``)."""
-    return f"{err.filename or where}: could not write ({err.strerror or err})"
+    names, else ``where``, and the OS's reason (``No space left on device``). An OSError raised
+    with a message of its own (``FileNotFoundError("<file>: no best checkpoint")``) is that message."""
+    if err.errno is None and not err.filename:
+        return " ".join(str(err).split())
+    return f"{err.filename or where}: could not {doing} ({err.strerror or err})"
+
+
+#: Words of torch's advice on a refused checkpoint that would have the user load it unsafely
+#: (``weights_only=False``, allowlisting the global it names): never repeated in a message.
+_UNSAFE_ADVICE = ("weights_only", "safe_globals", "trusted source", "arbitrary code")
+
+
+def checkpoint_load_reason(err: Exception) -> str:
+    """One short line of why ``torch.load(..., weights_only=True)`` refused a file, in the training
+    side's words for every checkpoint reader: a pickle holding more than tensors is named as such
+    (with the global it names), never with torch's advice to re-run the load unsafely."""
+    lines = [line.strip() for line in str(err).splitlines() if line.strip()]
+    text = " ".join(lines)
+    if isinstance(err, pickle.UnpicklingError) or "Weights only load failed" in text:
+        found = re.search(r"GLOBAL ([\w.]+)", text)
+        what = f": unsupported GLOBAL {found.group(1)}" if found else ""
+        return f"it holds more than tensors and plain data, not loaded{what}"
+    reason = lines[0].split(". ")[0][:200] if lines else type(err).__name__
+    return type(err).__name__ if any(w in reason for w in _UNSAFE_ADVICE) else reason

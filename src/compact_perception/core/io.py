@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import contextlib
+import errno
 import io as _io
 import json
 import os
@@ -34,6 +35,26 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     except BaseException:
         tmp_path.unlink(missing_ok=True)
         raise
+
+
+def check_writable(*folders: str | os.PathLike) -> None:
+    """Raise the OSError (naming the folder) a write into any of ``folders`` would meet (read-only,
+    no permission, a read-only file system), before a stage writes anything: a file is created and
+    removed in each folder, or in its nearest existing parent where the folder is not there yet
+    (nothing is created in its place)."""
+    for folder in folders:
+        target = Path(folder)
+        probe = target
+        while not probe.exists() and probe != probe.parent:
+            probe = probe.parent
+        if not probe.is_dir():
+            raise NotADirectoryError(errno.ENOTDIR, "not a folder", str(probe))
+        try:
+            fd, tmp = tempfile.mkstemp(prefix=".write-check.", suffix=".tmp", dir=probe)
+        except OSError as err:
+            raise type(err)(err.errno, err.strerror or str(err), str(target)) from None
+        os.close(fd)
+        os.unlink(tmp)
 
 
 def remove_leftovers(folder: str | os.PathLike) -> list[Path]:

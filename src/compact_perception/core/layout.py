@@ -16,8 +16,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Iterable
 
-__all__ = ["RunPaths", "run_paths", "study_paths", "floor_paths", "STUDY_DIR"]
+__all__ = ["RunPaths", "run_paths", "study_paths", "floor_paths", "evaluation_folders", "STUDY_DIR"]
 
 #: The folder of a dataset's study runs (not a model id: :mod:`.catalog` registers none by this name).
 STUDY_DIR = "study"
@@ -59,3 +60,11 @@ def floor_paths(dataset: str, trivial_id: str, root: Path | str = ".") -> RunPat
     root, tail = Path(root), Path(dataset) / trivial_id
     return RunPaths(dataset, trivial_id, -1, root / "runs" / tail, root / "results" / tail / "metrics.json",
                     root / "data" / "eval" / tail)
+
+
+def evaluation_folders(paths: Iterable[RunPaths]) -> list[Path]:
+    """The folders an evaluation of ``paths`` writes (each one's ``results/`` folder, then its
+    ``data/eval/`` folder), once each: what the evaluate stage checks it can write before it writes."""
+    paths = list(paths)
+    found = [p.metrics_path.parent for p in paths] + [p.eval_dir for p in paths]
+    return list(dict.fromkeys(found))

@@ -43,6 +43,7 @@ from .figures import plot_loss_weights, plot_qualitative, plot_training_curves
 from .paper import PaperNumbers, load_paper_numbers
 from .plots import write_plot_data
 from .schema import DATASET_LABEL, FLOOR_LABEL, METRIC_TASK, MGN_FORMS, ROW_LABEL, ROW_ORDER
+from .selection import selected_efficiency
 from .study import StudyOutputs, study_run_dirs, write_study_report
 from .tables.comparison import SPLITS, comparison_files, scale_lines
 from .tables.extra import build_extra_rows, extra_files
@@ -122,7 +123,7 @@ def read_inputs(root: Path, datasets: Sequence[str], models: Sequence[str], seed
     root = Path(root)
     results = load_results(root, list(datasets), list(models), seeds)
     eff_path = root / "results" / "benchmark" / "efficiency.json"
-    efficiency = read_json(eff_path) if eff_path.is_file() else None
+    efficiency = selected_efficiency(read_json(eff_path), datasets, models) if eff_path.is_file() else None
     if efficiency is None:
         log.warning("%s missing: Table III skipped", eff_path)
     frames = {ds: load_row_frames(root, ds, list(models), seeds) for ds in datasets}

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import errno
 import logging
-import pickle
 import shutil
 from pathlib import Path
 from typing import Any, Optional
@@ -19,7 +18,7 @@ from typing import Any, Optional
 import torch
 
 from ..core import io
-from ..core.errors import RunError
+from ..core.errors import RunError, checkpoint_load_reason
 from .distributed import Dist
 from .state import RunPaths, RunState
 
@@ -73,12 +72,9 @@ def save_last(run: RunState, epoch: int) -> None:
 
 
 def _reason(err: Exception) -> str:
-    """One short line of why ``torch.load`` refused a file."""
-    lines = [line.strip() for line in str(err).splitlines() if line.strip()]
-    if isinstance(err, pickle.UnpicklingError):  # weights_only refused an object: name it, not torch's advice
-        detail = next((line for line in lines if "GLOBAL" in line), lines[-1] if lines else "")
-        return f"it holds more than tensors and plain data, not loaded: {detail}"[:240]
-    return lines[0].split(". ")[0][:200] if lines else type(err).__name__
+    """One short line of why ``torch.load`` refused a file (:func:`..core.errors.checkpoint_load_reason`:
+    what every checkpoint reader says, never torch's advice to load it unsafely)."""
+    return checkpoint_load_reason(err)
 
 
 def read_checkpoint(path: Path, device: torch.device | str = "cpu",

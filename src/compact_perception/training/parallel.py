@@ -26,6 +26,8 @@ from typing import Any, Callable, Sequence
 
 from tqdm.auto import tqdm
 
+from ..core.errors import os_error_line
+
 log = logging.getLogger(__name__)
 
 __all__ = ["Job", "JobError", "run_jobs"]
@@ -48,7 +50,9 @@ def _call(fn: Callable[..., Any], job: Job) -> tuple[str, Any, str | None]:
     """Worker side: run one job; an expected error becomes its one-line message."""
     try:
         return job.name, fn(*job.args), None
-    except (RuntimeError, ValueError, OSError) as err:  # RunError, CacheError, ParamsError, a full disk
+    except OSError as err:  # a full disk, a read-only folder: the file and the OS's reason
+        return job.name, None, " ".join(os_error_line(err, job.name).split())
+    except (RuntimeError, ValueError) as err:  # RunError, CacheError, ParamsError
         return job.name, None, " ".join(str(err).split())
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import logging
 import multiprocessing as mp
 import zlib
+from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator
@@ -159,7 +160,22 @@ def episode_seed(params: Params, dataset_id: str, index: int) -> int:
 
 
 def plan_episodes(params: Params, dataset_id: str) -> list[dict]:
-    """Episodes of a dataset: split, town, index, seed, frames (``split_ratio``; no episode in two splits)."""
+    """Episodes of a dataset: split, town, index, seed, frames (``split_ratio``; no episode in two
+    splits), as a list (:func:`iter_episodes` plans them one at a time)."""
+    return list(iter_episodes(params, dataset_id))
+
+
+def episode_count(params: Params, dataset_id: str) -> tuple[int, int]:
+    """(frames, episodes) of a dataset, counted without planning the episodes."""
+    dp = getattr(params.datasets, dataset_id)
+    n = dp.split_ratio.at(params.scale).counts(dp.frames.at(params.scale))
+    E = params.world.frames_per_episode
+    return sum(n.values()), sum(-(-n[s] // E) for s in _SPLITS)
+
+
+def iter_episodes(params: Params, dataset_id: str) -> Iterator[dict]:
+    """The episodes of :func:`plan_episodes`, in its order, planned as they are needed (a dataset's
+    plan is never held in memory whole)."""
     dp = getattr(params.datasets, dataset_id)
     F = dp.frames.at(params.scale)
     E = params.world.frames_per_episode
@@ -169,7 +185,7 @@ def plan_episodes(params: Params, dataset_id: str) -> list[dict]:
     else:
         allt = list(dict.fromkeys(list(dp.train_towns) + list(dp.eval_towns)))
         towns = {s: allt for s in _SPLITS}
-    plan, idx = [], 0
+    idx = 0
     for split in _SPLITS:
         left, k = n[split], 0
         while left > 0:
@@ -177,9 +193,8 @@ def plan_episodes(params: Params, dataset_id: str) -> list[dict]:
             tl = towns[split]
             # val and test alternate towns so both see every eval town (1:1 by episode)
             town = tl[(k + (1 if split == "test" else 0)) % len(tl)]
-            plan.append({"split": split, "town": town, "index": idx, "seed": episode_seed(params, dataset_id, idx), "frames": m})
+            yield {"split": split, "town": town, "index": idx, "seed": episode_seed(params, dataset_id, idx), "frames": m}
             idx, left, k = idx + 1, left - m, k + 1
-    return plan
 
 
 def _frame_id(town: str, index: int, step: int) -> str:
@@ -203,6 +218,18 @@ def _episode_job(job: tuple[dict, dict, int, str]) -> tuple[dict, list[tuple[str
     return ep, metas, pix, pts
 
 
+def _in_order(pool: Any, jobs: Iterator[tuple], window: int) -> Iterator[tuple]:
+    """The results of ``_episode_job`` over ``jobs`` in their order, at most ``window`` episodes
+    submitted ahead (``Pool.imap`` would plan and queue every episode at once)."""
+    pending: deque = deque()
+    for job in jobs:
+        pending.append(pool.apply_async(_episode_job, (job,)))
+        if len(pending) >= window:
+            yield pending.popleft().get()
+    while pending:
+        yield pending.popleft().get()
+
+
 def generate_dataset(params: Params, dataset_id: str, out_dir: str | Path) -> Path:
     """Write the simulated dataset ``dataset_id`` to ``out_dir`` (= data/raw/<ds>) atomically."""
     check_dataset_params(params, dataset_id)
@@ -211,23 +238,23 @@ def generate_dataset(params: Params, dataset_id: str, out_dir: str | Path) -> Pa
         raise ParamsError(f"datasets.{dataset_id}.source is {dp.source!r}: the preprocess stage reads authors_root directly")
     wp = params.world
     S = wp.resolution.at(params.scale)
-    plan = plan_episodes(params, dataset_id)
-    total = sum(e["frames"] for e in plan)
+    total, n_episodes = episode_count(params, dataset_id)
     out_dir = Path(out_dir)
-    log.info("dataset %s: %d frames in %d episodes at %dx%d -> %s", dataset_id, total, len(plan), S, S, out_dir)
+    log.info("dataset %s: %d frames in %d episodes at %dx%d -> %s", dataset_id, total, n_episodes, S, S, out_dir)
     with io.atomic_dir(out_dir) as tmp:
         frames_dir = tmp / "frames"
         frames_dir.mkdir()
         wp_dict = wp.model_dump(mode="json")
-        jobs = [(wp_dict, e, S, str(frames_dir)) for e in plan]
+        jobs = ((wp_dict, e, S, str(frames_dir)) for e in iter_episodes(params, dataset_id))
         splits: dict[str, list[str]] = {s: [] for s in _SPLITS}
         frames: dict[str, dict] = {}
         pix: dict[str, np.ndarray] = {}
         pts: dict[str, np.ndarray] = {}
         bar = tqdm(total=total, desc=f"generate {dataset_id}", unit="frame", leave=False)
-        pool = mp.get_context("fork").Pool(min(wp.workers, len(jobs))) if wp.workers > 1 and len(jobs) > 1 else None
+        workers = min(wp.workers, n_episodes)
+        pool = mp.get_context("fork").Pool(workers) if workers > 1 else None
         try:
-            results = pool.imap(_episode_job, jobs) if pool else map(_episode_job, jobs)
+            results = _in_order(pool, jobs, 2 * workers) if pool else map(_episode_job, jobs)
             for ep, metas, p, q in results:
                 for fid, meta in metas:
                     splits[ep["split"]].append(fid)
@@ -254,4 +281,4 @@ def generate_dataset(params: Params, dataset_id: str, out_dir: str | Path) -> Pa
     return out_dir
 
 
-__all__ = ["render_episode", "generate_dataset", "plan_episodes", "episode_seed", "check_dataset_params", "build_scene", "TAG"]
+__all__ = ["render_episode", "generate_dataset", "plan_episodes", "iter_episodes", "episode_count", "episode_seed", "check_dataset_params", "build_scene", "TAG"]
