@@ -126,7 +126,7 @@ def coverage(design: Design = Design(), *, scenarios: Sequence[Scenario] = SCENA
              n_boot: int = 500) -> CoverageResult:
     """The share of ``n_sim`` simulated comparisons (:func:`simulate`; simulation i draws
     scenario ``i mod len(scenarios)`` from RNG ``(seed, i)``: deterministic) whose ``method``
-    interval holds the true difference; ``n_boot``: replicates of a bootstrap method."""
+    interval holds the true difference; ``n_boot``: replicates of the pigeonhole bootstrap."""
     if n_sim < 1 or not scenarios or design.n_seeds < 2:
         raise ValueError(f"coverage: need n_sim >= 1, a scenario and >= 2 seeds, got n_sim={n_sim}, "
                          f"{len(scenarios)} scenarios, {design.n_seeds} seeds")
