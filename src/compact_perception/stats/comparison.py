@@ -27,7 +27,6 @@ Statistic = Callable[[np.ndarray], np.ndarray]
 Contrast = Callable[[np.ndarray], np.ndarray]
 
 
-
 def stat_mean(m: np.ndarray) -> np.ndarray:
     """The mean of a one-column score (``m[..., 0]``)."""
     return np.asarray(m)[..., 0]
@@ -133,5 +132,3 @@ def make_comparison(groups: Sequence[GroupLike], clusters: Sequence[object]) -> 
     _, codes = np.unique(labels, return_inverse=True)
     codes = codes.astype(np.intp).ravel()
     return Comparison(tuple(out), codes, np.bincount(codes).astype(np.float64))
-
-

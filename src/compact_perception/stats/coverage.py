@@ -151,4 +151,3 @@ def coverage_line(res: CoverageResult) -> str:
     nominal 95% in 400 simulations at 3 seeds, 10 clusters``."""
     return (f"intervals: {res.method}; coverage {100 * res.coverage:.1f}% at nominal {100 * res.confidence:g}% in "
             f"{res.n_sim} simulations at {res.n_seeds} seeds, {res.n_clusters} clusters")
-

@@ -61,4 +61,3 @@ def satterthwaite_df(parts: Sequence[tuple[float, float]], total: Optional[float
     den = sum(v * v / d for v, d in parts if v != 0)
     tot = sum(v for v, _ in parts) if total is None else total
     return math.inf if den == 0 else max(1.0, tot * tot / den)
-

@@ -155,4 +155,3 @@ def seed_interval(values: Sequence[float], *, confidence: float = CONFIDENCE) ->
     est = float(v.mean())
     return IntervalResult(est, est - half, est + half, se, df, "seed-t", (int(v.size),), (False,), 0, 0, False,
                           confidence)
-

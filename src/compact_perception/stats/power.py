@@ -32,10 +32,8 @@ def mde(se: float, df: float, *, alpha: float = ALPHA, power: float = POWER) -> 
     return (t_ppf(1.0 - alpha / 2.0, df) + t_ppf(power, df)) * se
 
 
-
 def decidable(n_seeds: Sequence[int], fixed: Optional[Sequence[bool]] = None) -> bool:
     """Whether a comparison may get a verdict: every trained (non-fixed) group has at least
     :data:`MIN_SEEDS` seeds; a fixed (deterministic) group is exempt."""
     flags = list(fixed) if fixed is not None else [False] * len(n_seeds)
     return bool(n_seeds) and all(f or n >= MIN_SEEDS for n, f in zip(n_seeds, flags))
-

@@ -164,4 +164,3 @@ def _seed_only(parts: _Parts) -> tuple[float, float]:
     """SE and df over seeds only (the test frames taken as fixed)."""
     v = sum(v for v, _ in parts.seed)
     return (math.sqrt(v), satterthwaite_df(parts.seed)) if math.isfinite(v) else (math.nan, math.nan)
-

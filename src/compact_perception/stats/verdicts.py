@@ -100,4 +100,3 @@ def seeds_to_decide(res: IntervalResult, effect: Optional[float], *, max_seeds: 
         if mde(se, df, power=power) <= abs(effect):
             return s
     return None
-
