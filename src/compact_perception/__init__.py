@@ -24,7 +24,9 @@ Package map (one concern per module):
                    a stage's runs side by side
 - ``plan``         which runs a dataset's stages hold (each model at its seeds, the study's arms)
 - ``floor``        the trivial-predictor floor: input-blind predictors fitted on the train split
-- ``stats``        intervals (seed-cluster-t), minimal detectable effects, the decidability rule
+- ``stats``        the claims' statistics: distributions (t and normal quantiles, scipy), comparison,
+                   variance (the linearised contrast's parts), power (MDE, decidability),
+                   intervals (seed-cluster-t), verdicts, coverage (the check by simulation)
 - ``evaluate``     test scoring (floors, eq. (5) and arg-max scores, margins over the floor)
 - ``export``       ONNX export of a trained network and its check against PyTorch
 - ``timing``       batch-1 inference timing of the benchmark's variants
