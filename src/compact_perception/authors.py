@@ -511,7 +511,7 @@ def describe_authors_dataset(root: str | os.PathLike | None, splits: Any, datase
     release as :func:`ingest_authors` would, then writes a manifest pointing at ``root`` (split
     files, keys and frame ids) and a Fig. 1-like figure of the first test frame."""
     from .core import io
-    from .report.qualitative import plot_qualitative
+    from .qualitative import plot_qualitative
 
     size = _check_size(resolution)
     plan = plan_authors(root, splits, dataset_id)
