@@ -117,7 +117,7 @@ def train_figures(args: argparse.Namespace, device: torch.device, size: int, con
 def onnx_figures(args: argparse.Namespace) -> dict[str, float]:
     from compact_perception.export import export_onnx, onnxruntime_latency
     from compact_perception.models import DATASETS
-    from compact_perception.report.efficiency import dummy_batch, measure_fps
+    from compact_perception.efficiency import dummy_batch, measure_fps
 
     spec = DATASETS[args.dataset]
     torch.manual_seed(0)

@@ -22,7 +22,7 @@ import torch
 
 from compact_perception.models import DATASETS, build_model
 from compact_perception.training.precision import cpu_has_native_bf16
-from compact_perception.report.efficiency import device_name, dummy_batch
+from compact_perception.efficiency import device_name, dummy_batch
 from compact_perception.timing import Variant, benchmark_variants, default_variants
 
 

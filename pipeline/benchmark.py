@@ -24,7 +24,7 @@ from compact_perception.core import io
 from compact_perception.core.catalog import dataset_ids, model_ids, sim_dataset_ids
 from compact_perception.core.errors import os_error_line
 from compact_perception.models import DATASETS, build_model
-from compact_perception.report.efficiency import (CPU_MEMORY_METHOD, CUDA_MEMORY_METHOD, device_name,
+from compact_perception.efficiency import (CPU_MEMORY_METHOD, CUDA_MEMORY_METHOD, device_name,
                                                    dummy_batch, measure_fps, measure_model, measure_onnx)
 
 from ._common import start

@@ -15,7 +15,7 @@ pytest.importorskip("onnx")
 
 from compact_perception.export import export_onnx, onnxruntime_latency  # noqa: E402
 from compact_perception.models import build_model  # noqa: E402
-from compact_perception.report import efficiency as eff  # noqa: E402
+from compact_perception import efficiency as eff  # noqa: E402
 from compact_perception.report.tables.table3 import build_table3, table3_csv, table3_markdown  # noqa: E402
 from compact_perception.timing import Variant, benchmark_variants, build_inference, default_variants  # noqa: E402
 

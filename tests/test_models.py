@@ -254,3 +254,50 @@ def test_tiny_overfit(model_id: str) -> None:
         opt.step()
         history.append(loss.item())
     assert history[-1] < history[0], history
+
+
+def test_network_missing_a_contract_member_fails_at_registration():
+    """``register_network`` checks the factory's network class against ``PerceptionNet``: a class
+    without ``shared_layers`` (or without a return annotation) never reaches training."""
+    from torch import nn
+
+    from compact_perception.models.base import NETWORKS, PerceptionNet, contract_gaps, register_network
+
+    class Partial(nn.Module):
+        tasks = ("de",)
+        argmax_tasks = ()
+
+        def forward(self, batch):
+            return {}
+
+        def compute_losses(self, outputs, batch):
+            return {}
+
+    def factory(ds, info):
+        return Partial()
+
+    factory.__annotations__["return"] = Partial  # a local class: the annotation itself, not its name
+
+    with pytest.raises(TypeError, match=r"network 'partial': Partial does not meet the PerceptionNet contract "
+                                        r"\(models/base.py\); it lacks: method shared_layers\(\)"):
+        register_network("partial")(factory)
+    assert "partial" not in NETWORKS
+
+    def unannotated(ds, info):
+        return Partial()
+
+    with pytest.raises(TypeError, match="must annotate its return with the network class"):
+        register_network("partial")(unannotated)
+    assert contract_gaps(nn.Module) == ["class attribute 'tasks'", "class attribute 'argmax_tasks'", "method forward()",
+                                        "method compute_losses()", "method shared_layers()"]
+    assert PerceptionNet.__doc__
+
+
+def test_every_registered_network_meets_the_contract():
+    from compact_perception.models import NETWORKS
+    from compact_perception.models.base import contract_gaps
+
+    for key in NETWORKS.keys():
+        cls = NETWORKS[key].__annotations__["return"]
+        cls = NETWORKS[key].__globals__[cls] if isinstance(cls, str) else cls
+        assert contract_gaps(cls) == [], key

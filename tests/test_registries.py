@@ -57,6 +57,20 @@ def test_every_weighting_declares_label_and_schema():
         assert hasattr(cls, "params_model"), key
 
 
+def test_weighting_labels_live_in_the_catalog():
+    """The report reads a method's label and ``adaptive`` from ``core.catalog`` (no torch): the same
+    methods as the classes registered, and a class registered under an id the catalog lacks fails."""
+    from compact_perception.weighting.base import LossWeighting, register
+
+    assert set(catalog.WEIGHTING_METHODS.keys()) == set(WEIGHTINGS.keys())
+    for key in WEIGHTINGS.keys():
+        info = catalog.weighting_info(key)
+        assert (weighting_class(key).label, weighting_class(key).adaptive) == (info.label, info.adaptive)
+    with pytest.raises(KeyError, match="unknown loss weighting 'nope'"):
+        register("nope")(type("Nope", (LossWeighting,), {"params_model": None}))
+    assert "nope" not in WEIGHTINGS
+
+
 def test_every_weighting_class_in_the_package_is_registered():
     """A new method is one file: its class registers itself and the package finds the module."""
     import inspect
@@ -69,8 +83,8 @@ def test_every_weighting_class_in_the_package_is_registered():
     for info in pkgutil.iter_modules(pkg.__path__):
         module = __import__(f"{pkg.__name__}.{info.name}", fromlist=["_"])
         for _, cls in inspect.getmembers(module, inspect.isclass):
-            if issubclass(cls, LossWeighting) and cls.__module__ == module.__name__ and "label" in vars(cls):
-                assert cls in registered, f"{cls.__name__} ({info.name}.py) declares a label but is not registered"
+            if issubclass(cls, LossWeighting) and cls.__module__ == module.__name__ and "params_model" in vars(cls):
+                assert cls in registered, f"{cls.__name__} ({info.name}.py) declares a schema but is not registered"
 
 
 def test_task_registry_directions():

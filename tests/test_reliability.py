@@ -275,7 +275,7 @@ def test_every_network_runs_at_the_resolutions_the_schema_allows(model_id, resol
     """The schema's smallest resolution, 32, and the next one, 64, run forward in every network
     (GradNorm SegNet failed at 16: 'Output size is too small')."""
     from compact_perception.models import build_model
-    from compact_perception.report.efficiency import dummy_batch
+    from compact_perception.efficiency import dummy_batch
 
     model = build_model(model_id, "A").eval()
     with torch.no_grad():

@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from compact_perception.core.config import parse_params
-from compact_perception.training.schedule import EarlyStop, Plateau
+from compact_perception.schedule import EarlyStop, Plateau
 from compact_perception.training.train import selection_score, train_run
 
 from repo_params import cap_epochs

@@ -15,12 +15,16 @@ Package map (one concern per module):
                    the sensors' buffer formats, BEV ground truth from the map, the resumable writer
 - ``dvs``/``lidar``/``preprocess`` the paper's preprocessing, eq. (1) and eq. (2)-(5)
 - ``figures_lidar`` the LiDAR preprocessing figure (Fig. 5-like)
+- ``qualitative``  the qualitative grid of one test frame (Fig. 6/7), drawn by the data stages
+                   (authors' source) and the report
 - ``data``         the PyTorch loader over the cache
 - ``models``       the compact model and the baselines, ``build_model(model_id, dataset_id)``
 - ``losses``/``metrics`` section III-B
 - ``weighting``    loss weighting: static, none, MGN (Algorithm 1), GradNorm, UW, DWA, PCGrad,
                    CAGrad, single-task
-- ``training``     the training run (section IV-D): loop, lr schedule, provenance, precision, DDP,
+- ``schedule``     the plateau rule of section IV-D (lr halving, early stop), shared by training
+                   and MGN's weight learning rate
+- ``training``     the training run (section IV-D): loop, checkpoints, provenance, precision, DDP,
                    a stage's runs side by side
 - ``plan``         which runs a dataset's stages hold (each model at its seeds, the study's arms)
 - ``floor``        the trivial-predictor floor: input-blind predictors fitted on the train split
@@ -29,6 +33,7 @@ Package map (one concern per module):
                    intervals (seed-cluster-t), verdicts, coverage (the check by simulation)
 - ``evaluate``     test scoring (floors, eq. (5) and arg-max scores, margins over the floor)
 - ``export``       ONNX export of a trained network and its check against PyTorch
+- ``efficiency``   the model measurements of Table III: parameters, size, peak memory, FPS
 - ``timing``       batch-1 inference timing of the benchmark's variants
 - ``report``       tables, figures, claims, the loss-balancing study's table, and the index
 

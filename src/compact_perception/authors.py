@@ -427,18 +427,18 @@ def convert_frame(frame_dir: str | os.PathLike, frame_id: str, n_seg: int, n_bev
 
 
 # ----------------------------------------------------------------------------- whole set
-Task = tuple[str, str, int, int, int]  # frame_dir, frame_id, n_seg, n_bev, size
+AuthorsJob = tuple[str, str, int, int, int]  # one worker job: frame_dir, frame_id, n_seg, n_bev, size
 
 
-def _check_task(task: Task) -> None:
+def _check_task(task: AuthorsJob) -> None:
     check_frame(*task[:4])
 
 
-def _convert_task(task: Task) -> dict[str, Any]:
+def _convert_task(task: AuthorsJob) -> dict[str, Any]:
     return convert_frame(*task)
 
 
-def _tasks(plan: AuthorsPlan, size: int) -> dict[str, list[Task]]:
+def _tasks(plan: AuthorsPlan, size: int) -> dict[str, list[AuthorsJob]]:
     return {s: [(str(sp.frame_dir), fid, plan.n_seg, plan.n_bev, int(size)) for fid in sp.ids]
             for s, sp in plan.splits.items()}
 
@@ -448,7 +448,7 @@ def _pool(workers: int) -> Any:
     return mp.get_context("fork").Pool(workers) if workers > 1 else contextlib.nullcontext(None)
 
 
-def check_frames(tasks: Mapping[str, Sequence[Task]], pool: Any | None, desc: str) -> None:
+def check_frames(tasks: Mapping[str, Sequence[AuthorsJob]], pool: Any | None, desc: str) -> None:
     """Header-check every frame (in ``pool`` if given) with a progress bar."""
     flat = [t for ts in tasks.values() for t in ts]
     it = pool.imap_unordered(_check_task, flat, chunksize=16) if pool is not None else map(_check_task, flat)
@@ -456,7 +456,8 @@ def check_frames(tasks: Mapping[str, Sequence[Task]], pool: Any | None, desc: st
         pass
 
 
-def _iter_split(tasks: Sequence[Task], pool: Any | None, desc: str, stats: dict[str, float]) -> Iterator[dict[str, Any]]:
+def _iter_split(tasks: Sequence[AuthorsJob], pool: Any | None, desc: str,
+                stats: dict[str, float]) -> Iterator[dict[str, Any]]:
     it = pool.imap(_convert_task, tasks, chunksize=4) if pool is not None else map(_convert_task, tasks)
     for frame in tqdm(it, total=len(tasks), desc=desc, unit="frame", leave=False):
         diff = frame.pop("_lidar14_diff")
@@ -511,7 +512,7 @@ def describe_authors_dataset(root: str | os.PathLike | None, splits: Any, datase
     release as :func:`ingest_authors` would, then writes a manifest pointing at ``root`` (split
     files, keys and frame ids) and a Fig. 1-like figure of the first test frame."""
     from .core import io
-    from .report.qualitative import plot_qualitative
+    from .qualitative import plot_qualitative
 
     size = _check_size(resolution)
     plan = plan_authors(root, splits, dataset_id)

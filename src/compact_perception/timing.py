@@ -3,7 +3,7 @@
 :func:`build_inference` turns a model and a batch-1 input into a callable for one of the
 variants the benchmark compares -- precision (``fp32``, ``bf16``, ``fp16`` autocast),
 channels-last, ``torch.compile`` and CUDA graphs -- and :func:`benchmark_variants` times
-each with :func:`compact_perception.report.efficiency.measure_fps` (warm-up excluded, the
+each with :func:`compact_perception.efficiency.measure_fps` (warm-up excluded, the
 device synchronised around every timed call, median latency) and checks its outputs against
 float32 eager.
 
@@ -25,7 +25,7 @@ import torch
 from torch import Tensor, nn
 
 from .training.precision import autocast_context, batch_to_channels_last, maybe_compile, to_channels_last
-from .report.efficiency import device_name, measure_fps, synchronize
+from .efficiency import device_name, measure_fps, synchronize
 
 log = logging.getLogger(__name__)
 

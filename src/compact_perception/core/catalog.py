@@ -1,7 +1,9 @@
 """The registries of what the pipeline knows: tasks, datasets and models (issue "one source of
 truth"). Id lists, report labels, table columns and metric directions all derive from here;
 ``dvc.yaml``'s lists are checked against it (tests/test_registries.py). Loss-weighting methods
-register themselves in :mod:`compact_perception.weighting` (each with its params schema and label).
+register their classes in :mod:`compact_perception.weighting` (each with its params schema); their
+report label and whether their weights adapt live here (:data:`WEIGHTING_METHODS`), so the report
+reads them without importing torch, and a class registered under an id missing here fails.
 
 This module imports nothing heavy (no torch), so the config and every stage can read it.
 
@@ -15,6 +17,8 @@ This module imports nothing heavy (no torch), so the config and every stage can 
   tasks, the network (``compact_perception.models.NETWORKS``) that builds it, its row in the
   report's tables (``table_order``) and the tasks it gives "the combination of baselines"
   (``combination``, section V-D: GradNorm's DE and SS, PolarNet's LS, Chen et al.'s BEVP);
+- a **loss-weighting method**: its report label and whether its weights change during training
+  (``adaptive``: the report draws those);
 - a **data source**: the label a report gives the source a cache records (:data:`SOURCE_LABEL`).
 
 Adding a model (three files): the network's file in ``models/`` (its factory registers itself with
@@ -35,6 +39,7 @@ __all__ = [
     "metric_of", "metric_keys", "higher_is_better", "model_label", "table_model_ids", "combination_source",
     "SOURCE_LABEL", "source_label",
     "ScoreInfo", "SCORES", "table2_columns", "per_frame_columns", "column_label", "lower_is_better",
+    "WeightingInfo", "WEIGHTING_METHODS", "weighting_info",
 ]
 
 
@@ -107,6 +112,27 @@ MODELS.register("polarnet")(ModelInfo("PolarNet", "baseline", 15, ("ls",), "pola
                                       combination=("ls",), epoch_cost=1.0))
 MODELS.register("chen_bev")(ModelInfo("Chen et al.", "baseline", 15, ("bevp",), "chen_bev", table_order=0,
                                       combination=("bevp",), epoch_cost=0.35))
+
+
+
+@dataclass(frozen=True)
+class WeightingInfo:
+    label: str                               # report label: "MGN (Algorithm 1)"
+    adaptive: bool = True                    # its loss weights change during training
+
+
+#: The loss-weighting methods (``ModelRecipe.weighting``); their classes are in
+#: :mod:`compact_perception.weighting`, which takes ``label`` and ``adaptive`` from here.
+WEIGHTING_METHODS: Registry[WeightingInfo] = Registry("loss weighting")
+WEIGHTING_METHODS.register("static")(WeightingInfo("Equal static weights", adaptive=False))
+WEIGHTING_METHODS.register("none")(WeightingInfo("No weighting (plain sum)", adaptive=False))
+WEIGHTING_METHODS.register("mgn")(WeightingInfo("MGN (Algorithm 1)"))
+WEIGHTING_METHODS.register("gradnorm")(WeightingInfo("GradNorm (Chen et al. 2018)"))
+WEIGHTING_METHODS.register("uw")(WeightingInfo("Uncertainty weighting (Kendall et al. 2018)"))
+WEIGHTING_METHODS.register("dwa")(WeightingInfo("DWA (Liu et al. 2019)"))
+WEIGHTING_METHODS.register("pcgrad")(WeightingInfo("PCGrad (Yu et al. 2020)"))
+WEIGHTING_METHODS.register("cagrad")(WeightingInfo("CAGrad (Liu et al. 2021)"))
+WEIGHTING_METHODS.register("single")(WeightingInfo("Single-task network", adaptive=False))
 
 #: How a report names the data source a cache records (``meta.json`` ``source``).
 SOURCE_LABEL: dict[str, str] = {
@@ -208,3 +234,8 @@ def combination_source() -> dict[str, str]:
 def source_label(source: str) -> str:
     """The report label of a cache's ``source`` (the raw value where none is registered)."""
     return SOURCE_LABEL.get(source, source)
+
+
+def weighting_info(key: str) -> WeightingInfo:
+    """The report label and ``adaptive`` flag of the loss weighting ``key`` (no torch import)."""
+    return WEIGHTING_METHODS[key]

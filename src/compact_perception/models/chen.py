@@ -194,6 +194,6 @@ class ChenBEV(nn.Module):
 
 
 @register_network("chen_bev")
-def _build(ds: DatasetSpec, info: ModelInfo) -> nn.Module:
+def _build(ds: DatasetSpec, info: ModelInfo) -> ChenBEV:
     """Chen et al.'s BEV network (BEVP)."""
     return ChenBEV(ds.n_seg, ds.n_bev)

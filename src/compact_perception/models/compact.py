@@ -182,7 +182,7 @@ class CompactPerception(nn.Module):
 
 
 @register_network("compact")
-def _build(ds: DatasetSpec, info: ModelInfo, tasks: Sequence[str] | None = None) -> nn.Module:
+def _build(ds: DatasetSpec, info: ModelInfo, tasks: Sequence[str] | None = None) -> CompactPerception:
     """The compact network of section III-A for a dataset (1 or 15 LiDAR channels, DVS or not);
     ``tasks`` builds it for a subset of its tasks (default all)."""
     return CompactPerception(ds.n_seg, ds.n_bev, lidar_channels=info.lidar_channels, has_dvs=ds.has_dvs,

@@ -106,6 +106,6 @@ class PolarNet(nn.Module):
 
 
 @register_network("polarnet")
-def _build(ds: DatasetSpec, info: ModelInfo) -> nn.Module:
+def _build(ds: DatasetSpec, info: ModelInfo) -> PolarNet:
     """PolarNet (LS) on the model's LiDAR channels."""
     return PolarNet(ds.n_seg, in_ch=info.lidar_channels)

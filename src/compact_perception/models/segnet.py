@@ -109,6 +109,6 @@ class GradNormSegNet(nn.Module):
 
 
 @register_network("gradnorm_segnet")
-def _build(ds: DatasetSpec, info: ModelInfo) -> nn.Module:
+def _build(ds: DatasetSpec, info: ModelInfo) -> GradNormSegNet:
     """GradNorm's SegNet (DE + SS) on a dataset's views."""
     return GradNormSegNet(ds.n_seg, n_views=ds.n_views)

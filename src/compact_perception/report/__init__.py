@@ -11,11 +11,13 @@ plots' CSV files, the headline metrics and ``reports/index.md``, over every trai
 - ``gate``        the learnedness gate: each row's margin over the trivial-predictor floor and
                   whether its interval lies above 0 (nothing below the floor is bolded, judged or
                   given a Δm)
-- ``claims``      the claims scorecard (CLAIMS.md; both MGN forms; ``not decidable`` with the reason)
-- ``figures``     loss-weight plots (Fig. 8), validation curves, qualitative grids (Fig. 6/7)
+- ``claims``      the claims (CLAIMS.md; both MGN forms), each row decided (``not decidable`` with the
+                  reason)
+- ``scorecard``   the claim rows, their verdict counts and the scorecard's ``claims.{md,csv}``
+- ``figures``     loss-weight plots (Fig. 8), validation curves, qualitative grids (Fig. 6/7, drawn by
+                  the leaf module :mod:`compact_perception.qualitative`)
 - ``plots``       every run's validation TM and loss weights as long CSVs for ``dvc plots``
 - ``study``       the loss-balancing study (beyond the paper): ``weighting.{md,csv}`` (four metrics,
                   TM, MV, Δm against single-task networks, time per epoch) and every method's loss weights
-- ``efficiency``  parameter count, state-dict size, peak memory and FPS of a model
 - ``index``       ``reports/index.md`` and ``reports/metrics.json`` tying everything together
 """

@@ -50,8 +50,8 @@ import pandas as pd
 
 from ..core import catalog
 from ..core.cache import frame_cluster
-from ..stats import (CONTRADICTED, INCONCLUSIVE, METHOD, MIN_SEEDS, NOT_DECIDABLE, REPRODUCED, CoverageResult, Design,
-                     MAX_SEEDS_TO_DECIDE, IntervalResult, comparison_verdict, coverage, coverage_line, interval,
+from ..stats import (METHOD, MIN_SEEDS, NOT_DECIDABLE, CoverageResult, Design, MAX_SEEDS_TO_DECIDE, IntervalResult,
+                     comparison_verdict, coverage, coverage_line, interval,
                      seed_interval, seeds_to_decide, verdict)
 from .collect import (CONVERGED, ReportInputError, SeedSpec, frame_comparison, list_runs, load_floor_frames,
                       load_floor_results, load_row_frames, read_summary, seeds_for)
@@ -59,22 +59,20 @@ from .gate import NO_FLOOR, DatasetFloor, Gate, Margin, failing_text
 from .paper import PaperNumbers
 from .schema import (COMBINATION, COMBINATION_MODELS, COMPACT, DATASET_LABEL, LOWER_IS_BETTER, MGN_FORMS, PAPER_MGN,
                      ROW_LABEL, TASK_COLUMNS, WEIGHT_KEYS, beats, column_stat, stat_columns, weight_key)
-from .tables.formats import csv_text, md_table, write_files
+from .scorecard import (FLOOR_NA, ClaimRow, claims_csv, claims_markdown, exact_counts,  # noqa: F401
+                        verdict_counts)  # exact_counts, verdict_counts: the index imports them from here
+from .tables.formats import write_files
 from .tables.table3 import Table3Row, build_table3
 
 log = logging.getLogger(__name__)
 
 LABEL: dict[str, str] = {**ROW_LABEL, COMBINATION: "the combination"}
-MODELS: tuple[str, ...] = catalog.model_ids()
+CLAIM_MODELS: tuple[str, ...] = catalog.model_ids()  # the models whose per-frame scores the claims read
 #: Equivalence margin of "15L+MGN and 15L have equal MV" (nuScenes): one unit of the paper's
 #: printed precision (3 decimals), the smallest difference Table II could show.
 MV_MARGIN = 1e-3
 #: The note's prefix where an input the claim needs is missing (the verdict: ``not decidable``).
 NO_DATA = "no data"
-#: ``above_floor`` of a row the gate does not apply to (the exact counts of Table III).
-FLOOR_NA = "n/a"
-#: The claims of Table III: exact counts (and FPS's timed range), reported apart.
-EXACT_PREFIX = "efficiency/"
 
 #: (claim id, short statement) in scorecard order.
 CLAIMS: tuple[tuple[str, str], ...] = (
@@ -157,39 +155,6 @@ RULE_TEXT = (
     "They are not counted with the claims judged on test scores. `paper`: the same difference from the paper's "
     "printed Table II (Fig. 8's weights are not printed)."
 )
-
-
-@dataclass(frozen=True)
-class ClaimRow:
-    """One line of the scorecard. ``model``: the model whose claim it is (the MGN form for the
-    claims about 15L+MGN); ``variant``: the MGN form's label (empty for the other claims);
-    ``mde``: the minimal detectable effect at 80% power of the row's design; ``above_floor``:
-    ``yes``, ``no: <models and tasks>`` or ``n/a`` (exact counts); ``seeds_to_decide``: the seeds
-    per model at which that MDE reaches the paper's effect (:func:`seeds_needed`)."""
-
-    dataset: str
-    claim: str
-    statement: str
-    paper: Optional[float]
-    measured: Optional[float]
-    ci_low: Optional[float]
-    ci_high: Optional[float]
-    n_seeds: Optional[int]
-    n_test_frames: Optional[int]
-    verdict: str
-    margin: Optional[float] = None
-    note: str = ""
-    model: str = ""
-    variant: str = ""
-    seeds_per_model: tuple[int, ...] = ()
-    mde: Optional[float] = None
-    above_floor: str = FLOOR_NA
-    seeds_to_decide: str = ""
-
-    @property
-    def exact(self) -> bool:
-        """An exact count of Table III (reported apart from the claims judged on test scores)."""
-        return self.claim.startswith(EXACT_PREFIX)
 
 
 @dataclass(frozen=True)
@@ -437,7 +402,7 @@ def claims_for_dataset(root: Path, ds: str, paper: PaperNumbers, frames: Optiona
     about 15L+MGN once per MGN form of :data:`~.schema.MGN_FORMS`). ``seeds``: the seed lists (see
     :func:`..collect.list_runs`); ``frames``: per-frame scores already loaded with them; ``gate``:
     the dataset's gate (:mod:`.gate`; built from the floor's outputs under ``root`` if ``None``)."""
-    frames = load_row_frames(root, ds, MODELS, seeds) if frames is None else frames
+    frames = load_row_frames(root, ds, CLAIM_MODELS, seeds) if frames is None else frames
     ctx = _Context(ds, frames, gate if gate is not None else dataset_gate(root, ds, frames), paper)
     rows = _lidar_rows(ctx, dict(CLAIMS))
     for mgn in MGN_FORMS:
@@ -508,34 +473,11 @@ def efficiency_claims(efficiency: Mapping[str, Any], paper: PaperNumbers, model:
     return rows
 
 
-#: The keys of the verdict counts (``reports/metrics.json``): every verdict, spaces as underscores.
-COUNT_KEYS: dict[str, str] = {v: v.replace(" ", "_") for v in (REPRODUCED, CONTRADICTED, INCONCLUSIVE, NOT_DECIDABLE)}
-
-
-def _counts(rows: Sequence[ClaimRow]) -> dict[str, int]:
-    out = {k: 0 for k in COUNT_KEYS.values()}
-    for r in rows:
-        out[COUNT_KEYS[r.verdict]] += 1
-    return out
-
-
-def verdict_counts(rows: Sequence[ClaimRow]) -> dict[str, int]:
-    """The claims judged on test scores (not Table III's exact counts), per verdict: ``reproduced``,
-    ``contradicted``, ``inconclusive`` (together: the rows the run can decide, learned models with
-    enough seeds) and ``not_decidable``."""
-    return _counts([r for r in rows if not r.exact])
-
-
-def exact_counts(rows: Sequence[ClaimRow]) -> dict[str, int]:
-    """Table III's exact counts (``efficiency/*``) per verdict, apart from :func:`verdict_counts`."""
-    return _counts([r for r in rows if r.exact])
-
-
 # ----------------------------------------------------------------------------- coverage of the intervals
 def _design(frames: Mapping[str, Sequence[pd.DataFrame]]) -> Optional[Design]:
     """This dataset's design for the coverage check: :data:`~compact_perception.stats.MIN_SEEDS`
     paired seeds and the test frames' clusters (episodes / scenes) of the first row with scores."""
-    ids = next((g[0].index for m in MODELS if (g := frames.get(m))), None)
+    ids = next((g[0].index for m in CLAIM_MODELS if (g := frames.get(m))), None)
     if ids is None or len(ids) == 0:
         return None
     sizes = Counter(frame_cluster(str(f)) for f in ids)
@@ -561,69 +503,10 @@ def coverage_text(frames: Mapping[str, Mapping[str, Sequence[pd.DataFrame]]]) ->
 
 
 # ----------------------------------------------------------------------------- output
-def _f(v: Optional[float], nd: int = 4) -> str:
-    return "" if v is None else f"{v:+.{nd}f}"
-
-
-def _seeds_text(r: ClaimRow) -> str:
-    if not r.seeds_per_model:
-        return "" if r.n_seeds is None else str(r.n_seeds)
-    return " vs ".join(map(str, r.seeds_per_model))
-
-
-def _md_row(r: ClaimRow) -> list[str]:
-    ci = "" if r.ci_low is None or r.ci_high is None else f"[{r.ci_low:+.4f}, {r.ci_high:+.4f}]"
-    stmt = r.statement + (f" (margin ±{r.margin:g})" if r.margin is not None else "")
-    return [f"`{r.claim}`", DATASET_LABEL.get(r.dataset, r.dataset), r.variant, stmt,
-            _f(r.paper, 3) if r.paper is not None else "not printed", _f(r.measured), ci,
-            "" if r.mde is None else f"{r.mde:.4f}", r.seeds_to_decide, _seeds_text(r),
-            "" if r.n_test_frames is None else str(r.n_test_frames), r.above_floor, f"**{r.verdict}**", r.note]
-
-
-def _counts_text(counts: Mapping[str, int]) -> str:
-    return ", ".join(f"{n} {k.replace('_', ' ')}" for k, n in counts.items())
-
-
-def claims_markdown(rows: list[ClaimRow], coverage: str = "") -> str:
-    """The scorecard as Markdown: the verdict counts, the intervals' coverage line, the claims
-    judged on test scores, Table III's exact counts apart, and the verdict rule."""
-    head = ["Claim", "Dataset", "MGN form", "Statement", "Paper", "Measured", "95% CI", "MDE (80%)",
-            "Seeds to decide", "Seeds", "Test frames", "Above floor", "Verdict", "Note"]
-    align = ["---"] * 4 + ["---:"] * 7 + ["---"] * 3
-    judged, exact = [r for r in rows if not r.exact], [r for r in rows if r.exact]
-    counts = verdict_counts(rows)
-    decided = sum(n for k, n in counts.items() if k != COUNT_KEYS[NOT_DECIDABLE])
-    lines = ["# Claims scorecard", "",
-             "The paper's claims (CLAIMS.md) tested on this run's test scores, over all training seeds; one row per "
-             "claim and dataset, and for the claims about 15L+MGN one row per MGN form (`Alg. 1`: Algorithm 1 as "
-             "printed, compact_15l_mgn; `authors' code`: compact_15l_mgn_authors).", "",
-             f"**Verdicts** over the {decided} rows this run can decide (every model compared above the floor, at "
-             f"least {MIN_SEEDS} seeds): {_counts_text({k: n for k, n in counts.items() if k != 'not_decidable'})}; "
-             f"{counts['not_decidable']} rows not decidable. Table III's exact counts, apart: "
-             f"{_counts_text(exact_counts(rows))}.", ""]
-    if coverage:
-        lines += [f"**Method and measured coverage**: {coverage}", ""]
-    lines += [md_table(head, [_md_row(r) for r in judged], align)]
-    if exact:
-        lines += ["## Exact counts (Table III), apart", "", md_table(head, [_md_row(r) for r in exact], align)]
-    lines += [RULE_TEXT, ""]
-    return "\n".join(lines)
-
-
-def claims_csv(rows: list[ClaimRow]) -> str:
-    header = ["dataset", "claim", "model", "variant", "statement", "paper", "measured", "ci_low", "ci_high", "mde",
-              "seeds_to_decide", "margin", "n_seeds", "seeds_per_model", "n_test_frames", "above_floor", "verdict",
-              "note"]
-    return csv_text(header, [[r.dataset, r.claim, r.model, r.variant, r.statement, r.paper, r.measured, r.ci_low,
-                              r.ci_high, r.mde, r.seeds_to_decide, r.margin, r.n_seeds,
-                              ";".join(map(str, r.seeds_per_model)),
-                              r.n_test_frames, r.above_floor, r.verdict, r.note] for r in rows])
-
-
 def write_claims(root: Path, datasets: Sequence[str], paper: PaperNumbers, out_dir: Path, *,
                  frames: Optional[dict[str, dict[str, list[pd.DataFrame]]]] = None, seeds: SeedSpec = None) -> list[Path]:
     """Write ``claims.md`` and ``claims.csv`` under ``out_dir``; returns the paths."""
-    frames = frames if frames is not None else {ds: load_row_frames(root, ds, MODELS, seeds) for ds in datasets}
+    frames = frames if frames is not None else {ds: load_row_frames(root, ds, CLAIM_MODELS, seeds) for ds in datasets}
     rows = build_claims(root, datasets, paper, frames=frames, seeds=seeds)
     log.info("claims: %s", {v: sum(r.verdict == v for r in rows) for v in sorted({r.verdict for r in rows})})
     return write_files(out_dir, claims_files(rows, coverage_text(frames)))
@@ -632,4 +515,4 @@ def write_claims(root: Path, datasets: Sequence[str], paper: PaperNumbers, out_d
 def claims_files(rows: list[ClaimRow], coverage: str = "") -> dict[str, str]:
     """The scorecard's ``claims.md`` and ``claims.csv`` (file name -> text); ``coverage``: the
     intervals' line (:func:`coverage_text`)."""
-    return {"claims.md": claims_markdown(rows, coverage), "claims.csv": claims_csv(rows)}
+    return {"claims.md": claims_markdown(rows, coverage, RULE_TEXT), "claims.csv": claims_csv(rows)}

@@ -26,7 +26,7 @@ import pandas as pd  # noqa: E402
 from matplotlib.ticker import MaxNLocator  # noqa: E402
 
 from .collect import read_summary, read_tsv_metric  # noqa: E402
-from .qualitative import plot_qualitative, save_figure  # noqa: E402,F401  (plot_qualitative: re-export)
+from ..qualitative import plot_qualitative, save_figure  # noqa: E402,F401  (plot_qualitative: re-export)
 from .schema import ROW_LABEL, WEIGHT_KEYS, WEIGHT_LABEL, WEIGHT_PREFIX, weight_key, weight_task  # noqa: E402
 
 log = logging.getLogger(__name__)
@@ -58,7 +58,7 @@ def read_weight_curves(run_dir: Path) -> dict[str, pd.Series]:
     return out
 
 
-def _mean_curve(series: Sequence[pd.Series]) -> pd.Series:
+def mean_curve(series: Sequence[pd.Series]) -> pd.Series:
     """Mean over runs per epoch (over the runs that reached that epoch)."""
     return pd.concat(list(series), axis=1).mean(axis=1).sort_index()
 
@@ -103,7 +103,7 @@ def plot_loss_weights(runs: Union[RunDirs, Mapping[str, RunDirs]], out_png: Path
             series = [c[t] for _, c in curves if t in c]
             for s in series if len(series) > 1 else []:
                 ax.plot(s.index, s.values, color=colour, linewidth=0.7, alpha=0.35)
-            m = _mean_curve(series)
+            m = mean_curve(series)
             label = f"{WEIGHT_LABEL.get(weight_key(t), t.upper())}: {np.mean(finals[t]):.3f}"
             ax.plot(m.index, m.values, color=colour, marker="o", markersize=3, linewidth=1.8, label=label)
         ax.plot([], [], color="black", linestyle="--", linewidth=0.8, label="best epoch (per seed)")
@@ -132,7 +132,7 @@ def plot_training_curves(runs: Mapping[str, RunDirs], out_png: Path, title: str 
         if not curves:
             continue
         colour = f"C{i % 10}"
-        m = _mean_curve([s for _, s in curves])
+        m = mean_curve([s for _, s in curves])
         n = len(curves)
         ax.plot(m.index, m.values, color=colour, linewidth=1.6,
                 label=ROW_LABEL.get(model, model) + (f" (mean of {n})" if n > 1 else ""))

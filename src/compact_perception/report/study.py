@@ -40,10 +40,10 @@ from matplotlib.ticker import MaxNLocator  # noqa: E402
 
 from ..core import catalog, io  # noqa: E402
 from ..core.layout import RunPaths, study_paths  # noqa: E402
-from ..weighting import weighting_class  # noqa: E402
+from ..core.catalog import weighting_info as weighting_class  # noqa: E402  (label, adaptive: no torch)
 from .collect import (Cell, aggregate_cells, list_runs, load_floor_frames, load_floor_results,  # noqa: E402
                       read_metrics, read_per_frame, read_summary, with_derived)
-from .figures import _mean_curve, read_weight_curves, save_figure  # noqa: E402
+from .figures import mean_curve as _mean_curve, read_weight_curves, save_figure  # noqa: E402
 from .gate import DatasetFloor, Gate, Margin  # noqa: E402
 from .schema import DATASET_LABEL, METRIC_TASK  # noqa: E402
 

@@ -20,7 +20,7 @@ from torch.utils.data import DataLoader
 from ..core.config import ModelRecipe, Params
 from ..weighting import LossWeighting
 from .distributed import Dist
-from .schedule import EarlyStop, Plateau
+from ..schedule import EarlyStop, Plateau
 
 __all__ = ["RunPaths", "RunSpec", "RunState"]
 

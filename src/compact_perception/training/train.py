@@ -53,7 +53,7 @@ from .checkpoint import (clear_for_start, discard_unsaved, load_resumable, mark_
 from .epoch import selection_score, split_scores, train_epoch, validate
 from .precision import make_grad_scaler, maybe_compile, resolve_precision, to_channels_last
 from .provenance import source_fingerprint
-from .schedule import EarlyStop, Plateau
+from ..schedule import EarlyStop, Plateau
 from .state import RunPaths, RunSpec, RunState
 
 log = logging.getLogger(__name__)

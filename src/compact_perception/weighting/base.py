@@ -6,6 +6,7 @@ from typing import Any, Callable, ClassVar, Mapping, Sequence
 import torch
 from torch import Tensor, nn
 
+from ..core.catalog import WEIGHTING_METHODS
 from ..core.config import Strict
 from ..core.registry import Registry
 
@@ -23,10 +24,11 @@ class LossWeighting:
     gradients of the losses themselves (GradNorm, MGN) scale by it and unscale their result,
     so float16 gradients do not underflow (:mod:`compact_perception.training.precision`).
 
-    Every concrete class declares ``label`` (its name in the report) and ``params_model`` (the
-    pydantic schema of its recipe section, named like its registry id; ``None`` when it has no
-    settings). ``adaptive`` says whether its loss weights change during training (the report
-    draws those); a method with fixed weights sets it to False.
+    Every concrete class declares ``params_model`` (the pydantic schema of its recipe section,
+    named like its registry id; ``None`` when it has no settings). ``label`` (its name in the
+    report) and ``adaptive`` (whether its loss weights change during training: the report draws
+    those) come from its entry in :data:`compact_perception.core.catalog.WEIGHTING_METHODS`, set
+    by :func:`register`.
     """
 
     key: ClassVar[str]                   # the registry id (set by :func:`register`)
@@ -154,10 +156,12 @@ WEIGHTINGS: Registry[type[LossWeighting]] = Registry("loss weighting")
 
 def register(key: str) -> Callable[[type[LossWeighting]], type[LossWeighting]]:
     """Class decorator: ``@register("uw")`` makes the class the weighting ``uw`` of params.yaml
-    (and sets its ``key``, the name of its recipe section)."""
+    (and sets its ``key``, the name of its recipe section, and its ``label`` and ``adaptive``
+    from ``core.catalog.WEIGHTING_METHODS``: an id missing there fails here)."""
 
     def deco(cls: type[LossWeighting]) -> type[LossWeighting]:
-        cls.key = key
+        info = WEIGHTING_METHODS[key]
+        cls.key, cls.label, cls.adaptive = key, info.label, info.adaptive
         return WEIGHTINGS.register(key)(cls)
 
     return deco

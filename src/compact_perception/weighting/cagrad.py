@@ -160,7 +160,6 @@ class CAGradWeighting(LossWeighting):
     sum, whose non-finite values make the scaler skip the step, and leaves ``w`` as it was.
     """
 
-    label = "CAGrad (Liu et al. 2021)"
     params_model = CAGradParams
 
     def __init__(self, tasks: Sequence[str], *, c: float, plateau_patience: int, plateau_factor: float) -> None:

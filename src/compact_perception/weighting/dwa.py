@@ -42,7 +42,6 @@ class DWAWeighting(LossWeighting):
     it does not count towards the first two epochs). ``r_k`` divides by ``max(L_k(t-2), 1e-12)``.
     """
 
-    label = "DWA (Liu et al. 2019)"
     params_model = DWAParams
 
     def __init__(self, tasks: Sequence[str], *, temperature: float, plateau_patience: int,

@@ -30,7 +30,6 @@ class GradNormWeighting(GradNormCore):
     (the last shared layer for the GradNorm-SegNet baseline). The weight lr is constant
     (``on_epoch_end`` only counts bad epochs), as in the original algorithm."""
 
-    label = "GradNorm (Chen et al. 2018)"
     params_model = GradNormParams
 
     def __init__(self, tasks: Sequence[str], shared: Mapping[str, Sequence[str]] | None = None, *,

@@ -13,7 +13,7 @@ from torch import Tensor, nn
 from pydantic import Field, model_validator
 
 from ..core.config import ModelRecipe, Strict, check_lr_floor
-from ..training.schedule import PlateauRule, plateau_due
+from ..schedule import PlateauRule, plateau_due
 from .base import LossWeighting, recipe_params, register, shared_weights
 
 __all__ = ["GradNormCore", "MGNWeighting", "MgnParams", "full_precision"]
@@ -193,7 +193,7 @@ class GradNormCore(LossWeighting):
     def on_epoch_end(self, improved: bool) -> None:
         """Plateau halving of the weight lr, "like the main lr" (SPEC 7): ``improved`` is the
         trainer's plateau verdict for this epoch; once ``plateau_rule`` calls for a reduction
-        (:func:`~compact_perception.training.schedule.plateau_due`: ``plateau_patience`` epochs without a
+        (:func:`~compact_perception.schedule.plateau_due`: ``plateau_patience`` epochs without a
         drop, or more than that for the 'torch' rule), ``lr <- max(lr * factor, lr_min)`` and the
         count restarts."""
         if improved:
@@ -239,7 +239,6 @@ class MGNWeighting(GradNormCore):
     ``total()`` would receive from that step's backward).
     """
 
-    label = "MGN (Algorithm 1)"
     params_model = MgnParams
 
     def __init__(self, tasks: Sequence[str], shared: Mapping[str, Sequence[str]] | None = None, *,

@@ -64,7 +64,6 @@ class PCGradWeighting(LossWeighting):
     sum, whose non-finite values make the scaler skip the step.
     """
 
-    label = "PCGrad (Yu et al. 2020)"
     params_model = PCGradParams
 
     def __init__(self, tasks: Sequence[str], *, seed: int, plateau_patience: int, plateau_factor: float) -> None:

@@ -27,9 +27,7 @@ class SingleTaskParams(Strict):
 class SingleTaskWeighting(LossWeighting):
     """One-hot weights: eq. (8) reduces to the loss of ``task``."""
 
-    label = "Single-task network"
     params_model = SingleTaskParams
-    adaptive = False
 
     @classmethod
     def network_tasks(cls, recipe: Any, tasks: Sequence[str]) -> tuple[str, ...]:

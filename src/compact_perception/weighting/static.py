@@ -10,9 +10,7 @@ __all__ = ["StaticWeighting", "NoWeighting"]
 class StaticWeighting(LossWeighting):
     """Fixed weights (default all 1, eq. 8 with w_i = 1); nothing adapts."""
 
-    label = "Equal static weights"
     params_model = None
-    adaptive = False
 
 
 @register("none")
@@ -21,6 +19,4 @@ class NoWeighting(StaticWeighting):
 
     Used by baselines whose own recipe combines its losses itself."""
 
-    label = "No weighting (plain sum)"
     params_model = None
-    adaptive = False

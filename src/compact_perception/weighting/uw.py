@@ -48,7 +48,6 @@ class UncertaintyWeighting(LossWeighting):
     non-finite task loss leaves s unchanged. The lr of s is constant (no plateau halving).
     """
 
-    label = "Uncertainty weighting (Kendall et al. 2018)"
     params_model = UWParams
 
     def __init__(self, tasks: Sequence[str], *, lr: float, plateau_patience: int, plateau_factor: float) -> None:

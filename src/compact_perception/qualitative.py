@@ -21,9 +21,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ..core import io  # noqa: E402
-from ..core.classes import BEV_PALETTE, CARLA_PALETTE  # noqa: E402
-from ..core.depth import DEPTH_FAR_M, DEPTH_LOG_K  # noqa: E402
+from .core import io  # noqa: E402
+from .core.classes import BEV_PALETTE, CARLA_PALETTE  # noqa: E402
+from .core.depth import DEPTH_FAR_M, DEPTH_LOG_K  # noqa: E402
 
 log = logging.getLogger(__name__)
 

@@ -175,7 +175,7 @@ def measure_onnx(model: nn.Module, batch: Batch, warmup: int = 10, runs: int = 5
     from pathlib import Path
 
     try:
-        from ..export import export_onnx, onnxruntime_latency
+        from .export import export_onnx, onnxruntime_latency
 
         with tempfile.TemporaryDirectory(prefix="onnx_bench_") as tmp:
             path = Path(tmp) / "model.onnx"
