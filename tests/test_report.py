@@ -20,9 +20,9 @@ from compact_perception.core.registry import Registry
 from compact_perception.metrics import scores_from_means
 from compact_perception.report import efficiency as eff
 from compact_perception.report import schema
-from compact_perception.report.collect import (ReportInputError, aggregate_cells, Cell, collect_scale, load_floor_frames,
-                                               load_floor_results, load_results, load_row_frames, read_metrics)
-from compact_perception.report.gate import DatasetFloor
+from compact_perception.report.collect import (ReportInputError, aggregate_cells, Cell, collect_scale,
+                                               load_results, load_row_frames, read_metrics)
+from compact_perception.report.gate import DatasetFloor, dataset_floor
 from compact_perception.report.figures import plot_loss_weights, plot_qualitative, plot_training_curves
 from compact_perception.report.index import HEADLINE_KEY, HEADLINE_MODEL, build_reports
 from compact_perception.report.plots import write_plot_data
@@ -151,7 +151,7 @@ def _frames(root: Path, datasets: tuple[str, ...] = ("A", "nuscenes"), seeds=SEE
 
 
 def _floors(root: Path, datasets: tuple[str, ...] = ("A", "nuscenes")) -> dict[str, DatasetFloor]:
-    return {ds: DatasetFloor(ds, load_floor_results(root, ds), load_floor_frames(root, ds)) for ds in datasets}
+    return {ds: dataset_floor(root, ds) for ds in datasets}
 
 
 def _stale_run(root: Path, ds: str = "A", model: str = "compact_1l", seed: int = 9) -> None:

@@ -41,11 +41,12 @@ from matplotlib.ticker import MaxNLocator  # noqa: E402
 from ..core import catalog, io  # noqa: E402
 from ..core.layout import RunPaths, study_paths  # noqa: E402
 from ..weighting import weighting_class  # noqa: E402
-from .collect import (Cell, aggregate_cells, list_runs, load_floor_frames, load_floor_results,  # noqa: E402
+from .collect import (Cell, aggregate_cells, list_runs,  # noqa: E402
                       read_metrics, read_per_frame, read_summary, with_derived)
 from .figures import _mean_curve, read_weight_curves, save_figure  # noqa: E402
-from .gate import DatasetFloor, Gate, Margin  # noqa: E402
+from .gate import DatasetFloor, Gate, Margin, dataset_floor  # noqa: E402
 from .schema import DATASET_LABEL, METRIC_TASK  # noqa: E402
+from .tables.formats import csv_text, md_table  # noqa: E402
 
 log = logging.getLogger(__name__)
 
@@ -351,7 +352,7 @@ def weighting_csv(rows: Sequence[StudyRow]) -> str:
         records.append(rec)
     columns = (["dataset", "method", "label", "n_seeds"] + [f"{k}_{s}" for k in SCORES for s in ("mean", "sd")]
                + ["above_floor"])
-    return pd.DataFrame(records, columns=columns).to_csv(index=False, float_format="%.10g", na_rep="")
+    return csv_text(columns, [[rec[c] for c in columns] for rec in records], float_format="%.10g")
 
 
 def _fmt(cell: Optional[Cell], key: str) -> str:
@@ -409,12 +410,8 @@ def weighting_markdown(rows: Sequence[StudyRow], spec: StudySpec, references: Ma
         if not ds_rows:
             out += ["No runs on this dataset yet.", ""]
         else:
-            out += ["| Method | Seeds | " + " | ".join(SCORE_MD[k] for k in cols) + " |",
-                    "|---|---|" + "---|" * len(cols)]
-            for r in ds_rows:
-                cells = [_cell(r, k) for k in cols]
-                out.append(f"| {r.method.label} | {r.n_seeds} | " + " | ".join(cells) + " |")
-            out.append("")
+            out += md_table(["Method", "Seeds", *(SCORE_MD[k] for k in cols)],
+                            [[r.method.label, str(r.n_seeds), *(_cell(r, k) for k in cols)] for r in ds_rows]).split("\n")
             gated = [f"{r.method.label} ({r.above_floor[4:]})" for r in ds_rows if r.below]
             if gated:
                 out += ["Not above the floor on every task (Δm not reported): " + "; ".join(gated) + ".", ""]
@@ -511,7 +508,7 @@ def write_study_report(root: Path, params: Any, out_tables: Path, out_figures: P
     floors = dict(floors or {})
     for ds in spec.datasets:
         if ds not in floors:
-            floors[ds] = DatasetFloor(ds, load_floor_results(Path(root), ds), load_floor_frames(Path(root), ds))
+            floors[ds] = dataset_floor(Path(root), ds)
     references: dict[str, dict[str, float]] = {}
     notes: dict[str, list[str]] = {}
     for ds in spec.datasets:

@@ -11,7 +11,8 @@ from ..collect import Cell, DatasetScale
 from ..paper import PaperCell, PaperNumbers
 from ..schema import (COLUMN_MD, COLUMN_TEX, COMBINATION, COMBINATION_SOURCE, DATASET_LABEL, ROW_LABEL, TABLE2_COLUMNS,
                       TASK_COLUMNS, paper_row)
-from .formats import (NOT_APPLICABLE, csv_text, fmt_num, fmt_seeds, fmt_var, md_table, table_files, tex_escape,
+from .formats import (NOT_APPLICABLE, booktabs, csv_text, fmt_num, fmt_seeds, fmt_var, md_table, table_files,
+                      tex_escape,
                       training_text)
 from .table2 import MGN_NOTE, Table2Row
 from .table3 import Table3Row
@@ -193,20 +194,18 @@ def comparison_markdown(rows: list[Comparison], lines: list[str]) -> str:
 
 
 def comparison_latex(rows: list[Comparison], lines: list[str]) -> str:
-    out = ["% Paper vs reproduced. Requires \\usepackage{booktabs}."] + [f"% {tex_escape(s)}" for s in lines]
-    out += [f"% {tex_escape(CMP_NOTE.replace('**', ''))}"]
-    out += ["\\begin{tabular}{llllrrrr}", "\\toprule",
-            "Dataset & Table & Model & Metric & Paper (mean $\\pm$ var frames) & This run (mean $\\pm$ sd seeds) "
-            "& This run var (frames) & Diff \\\\", "\\midrule"]
-    for c in rows:
-        diff = _diff(c).replace("x", "$\\times$")
-        out.append(" & ".join([tex_escape(DATASET_LABEL.get(c.dataset, c.dataset)), c.table,
-                               tex_escape(_cmp_label(c)),
-                               COLUMN_TEX.get(c.column, tex_escape(c.column)),
-                               _cmp_text(c.paper, c.paper_var, c.paper_var_below, c.column, True).replace(",", "{,}"),
-                               _ours_text(c, True).replace(",", "{,}"), _ours_var(c, True), diff]) + " \\\\")
-    out += ["\\bottomrule", "\\end{tabular}", ""]
-    return "\n".join(out)
+    body = [" & ".join([tex_escape(DATASET_LABEL.get(c.dataset, c.dataset)), c.table, tex_escape(_cmp_label(c)),
+                        COLUMN_TEX.get(c.column, tex_escape(c.column)),
+                        _cmp_text(c.paper, c.paper_var, c.paper_var_below, c.column, True).replace(",", "{,}"),
+                        _ours_text(c, True).replace(",", "{,}"), _ours_var(c, True),
+                        _diff(c).replace("x", "$\\times$")])
+            for c in rows]
+    return "\n".join(booktabs(
+        ["Paper vs reproduced. Requires \\usepackage{booktabs}.", *(tex_escape(s) for s in lines),
+         tex_escape(CMP_NOTE.replace('**', ''))],
+        "llllrrrr",
+        "Dataset & Table & Model & Metric & Paper (mean $\\pm$ var frames) & This run (mean $\\pm$ sd seeds) "
+        "& This run var (frames) & Diff", [body]))
 
 
 def comparison_csv(rows: list[Comparison]) -> str:

@@ -55,7 +55,7 @@ from ..gate import ABOVE, BELOW, NO_FLOOR, UNSHOWN, DatasetFloor, Gate
 from ..schema import (COLUMN_MD, COLUMN_TEX, COMBINATION, COMBINATION_MODELS, COMBINATION_SOURCE, DATASET_LABEL,
                       FLOOR_IDS, FLOOR_LABEL, LOWER_IS_BETTER, METRIC_TASK, ROW_LABEL, ROW_ORDER, TABLE2_COLUMNS,
                       TASK_COLUMNS, beats, column_stat, stat_columns)
-from .formats import (BELOW_FLOOR_MARK, BELOW_FLOOR_TEX, INCONCLUSIVE_MARK, NOT_APPLICABLE, NOT_AVAILABLE,
+from .formats import (BELOW_FLOOR_MARK, BELOW_FLOOR_TEX, INCONCLUSIVE_MARK, NOT_APPLICABLE, NOT_AVAILABLE, booktabs,
                       UNSHOWN_MARK, UNSHOWN_TEX, bold, csv_text, fmt_num, fmt_seeds, fmt_var, md_table, table_files,
                       tex_escape, training_text, write_files)
 
@@ -383,20 +383,18 @@ def table2_markdown(tables: dict[str, list[Table2Row]]) -> str:
 
 def table2_latex(tables: dict[str, list[Table2Row]]) -> str:
     header = _header(True)
-    lines = ["% Table II (reproduced). Requires \\usepackage{booktabs}.",
-             "% " + tex_escape(table2_caption(tables).replace("**", "").replace("`", "")),
-             "\\begin{tabular}{llrl" + "c" * (len(header) - 5) + "l}", "\\toprule",
-             " & ".join(h if "$" in h else tex_escape(h) for h in header) + " \\\\", "\\midrule"]
-    for k, (ds, rows) in enumerate(tables.items()):
-        if k:
-            lines.append("\\midrule")
-        for i, r in enumerate(rows):
-            first = tex_escape(DATASET_LABEL.get(ds, ds)) if i == 0 else ""
-            texts = _row_texts(r, True)
-            lead = " & ".join(tex_escape(t) for t in _lead(r))
-            lines.append(f"{first} & {tex_escape(r.label)} & {lead} & " + " & ".join(texts[:-1])
-                         + f" & {tex_escape(texts[-1])} \\\\")
-    lines += ["\\bottomrule", "\\end{tabular}", ""]
+
+    def row(first: str, r: Table2Row) -> str:
+        texts = _row_texts(r, True)
+        lead = " & ".join(tex_escape(t) for t in _lead(r))
+        return f"{first} & {tex_escape(r.label)} & {lead} & " + " & ".join(texts[:-1]) + f" & {tex_escape(texts[-1])}"
+
+    lines = booktabs(["Table II (reproduced). Requires \\usepackage{booktabs}.",
+                      tex_escape(table2_caption(tables).replace("**", "").replace("`", ""))],
+                     "llrl" + "c" * (len(header) - 5) + "l",
+                     " & ".join(h if "$" in h else tex_escape(h) for h in header),
+                     [[row(tex_escape(DATASET_LABEL.get(ds, ds)) if i == 0 else "", r) for i, r in enumerate(rows)]
+                      for ds, rows in tables.items()])
     lines += [f"% $^\\dagger$ {tex_escape(n)}" for n in table2_notes(tables)]
     return "\n".join(lines) + ("\n" if table2_notes(tables) else "")
 
