@@ -26,7 +26,7 @@ Package map (one concern per module):
 - ``floor``        the trivial-predictor floor: input-blind predictors fitted on the train split
 - ``stats``        intervals (seed-cluster-t), minimal detectable effects, the decidability rule
 - ``evaluate``     test scoring (floors, eq. (5) and arg-max scores, margins over the floor)
-- ``export``       ONNX export of a trained network and its check against PyTorch
+- ``onnx_export`` ONNX export of a trained network and its check against PyTorch
 - ``timing``       batch-1 inference timing of the benchmark's variants
 - ``report``       tables, figures, claims, the loss-balancing study's table, and the index
 

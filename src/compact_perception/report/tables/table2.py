@@ -43,7 +43,6 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Mapping, Optional, Sequence
 
 import pandas as pd
@@ -57,7 +56,7 @@ from ..schema import (COLUMN_MD, COLUMN_TEX, COMBINATION, COMBINATION_MODELS, CO
                       TASK_COLUMNS, beats, column_stat, stat_columns)
 from .formats import (BELOW_FLOOR_MARK, BELOW_FLOOR_TEX, INCONCLUSIVE_MARK, NOT_APPLICABLE, NOT_AVAILABLE, booktabs,
                       UNSHOWN_MARK, UNSHOWN_TEX, bold, csv_text, fmt_num, fmt_seeds, fmt_var, md_table, table_files,
-                      tex_escape, training_text, write_files)
+                      tex_escape, training_text)
 
 log = logging.getLogger(__name__)
 
@@ -435,12 +434,3 @@ def table2_csv(tables: dict[str, list[Table2Row]]) -> str:
 def table2_files(tables: dict[str, list[Table2Row]]) -> dict[str, str]:
     """``table2.{md,tex,csv}`` of the built table (file name -> text)."""
     return table_files("table2", table2_markdown(tables), table2_latex(tables), table2_csv(tables))
-
-
-def write_table2(results: dict[str, dict[str, ModelResult]], out_dir: Path,
-                 frames: Optional[dict[str, RowFrames]] = None, *,
-                 floors: Optional[Mapping[str, DatasetFloor]] = None,
-                 training: Optional[Mapping[str, Training]] = None) -> list[Path]:
-    """Build Table II (:func:`build_table2`) and write ``table2.{md,tex,csv}`` under ``out_dir``;
-    returns the paths."""
-    return write_files(out_dir, table2_files(build_table2(results, frames, floors=floors, training=training)))
