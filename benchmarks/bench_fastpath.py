@@ -115,7 +115,7 @@ def train_figures(args: argparse.Namespace, device: torch.device, size: int, con
 
 
 def onnx_figures(args: argparse.Namespace) -> dict[str, float]:
-    from compact_perception.export import export_onnx, onnxruntime_latency
+    from compact_perception.onnx_export import export_onnx, onnxruntime_latency
     from compact_perception.models import DATASETS
     from compact_perception.efficiency import dummy_batch, measure_fps
 

@@ -37,7 +37,7 @@ MODELS: tuple[str, ...] = tuple(m for m in catalog.model_ids() if m in (
     "compact_1l", "compact_15l", "compact_15l_mgn", "compact_15l_mgn_authors", "gradnorm_segnet", "polarnet",
     "chen_bev"))
 COMPACT: tuple[str, ...] = tuple(m for m in catalog.compact_model_ids() if m in MODELS)
-BASELINES: tuple[str, ...] = tuple(m for m in catalog.baseline_model_ids() if m in MODELS)
+BASELINES: tuple[str, ...] = tuple(m for m in MODELS if catalog.MODELS[m].group == "baseline")
 MGN: tuple[str, ...] = ("compact_15l_mgn", "compact_15l_mgn_authors")
 SEEDS: tuple[int, ...] = (0, 1, 2)
 #: The floor's trivial predictors (compact_perception.floor.TRIVIAL) and their test means: the

@@ -243,7 +243,7 @@ def test_listed_frame_absent_and_bad_png(copy: Path, tmp_path: Path) -> None:
     fx.set_info(copy, "Te2")
     depth = copy / "TeSet" / "depth_l" / "0001.png"
     fx.replace(depth, lambda p: cv2.imwrite(str(p), np.zeros((128, 128, 3), np.uint8)))
-    with pytest.raises(RecordError, match=r"depth_l/0001\.png: PNG colour type 2, bit depth 8; expected a single-channel"):
+    with pytest.raises(RecordError, match=r"depth_l/0001\.png: PNG mode RGB; expected a single-channel"):
         ingest_authors(copy, {"train": "Tr1", "val": "Va2", "test": "Te2"}, tmp_path / "c", "A", workers=2)
     assert not (tmp_path / "c").exists()
 

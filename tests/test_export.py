@@ -13,7 +13,7 @@ from torch import nn
 pytest.importorskip("onnxruntime")
 pytest.importorskip("onnx")
 
-from compact_perception.export import export_onnx, onnxruntime_latency  # noqa: E402
+from compact_perception.onnx_export import export_onnx, onnxruntime_latency  # noqa: E402
 from compact_perception.models import build_model  # noqa: E402
 from compact_perception import efficiency as eff  # noqa: E402
 from compact_perception.report.tables.table3 import build_table3, table3_csv, table3_markdown  # noqa: E402

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from compact_perception.floor import floor_of
-from compact_perception.report.collect import load_floor_frames, load_floor_results, load_row_frames
-from compact_perception.report.gate import (ABOVE, BELOW, NO_DATA, NO_FLOOR, UNSHOWN, DatasetFloor, Gate, Margin,
-                                            failing_text, status_of)
+from compact_perception.report.collect import load_row_frames
+from compact_perception.report.gate import (ABOVE, BELOW, NO_DATA, NO_FLOOR, UNSHOWN, Gate, Margin,
+                                            dataset_gate, failing_text, status_of)
 from compact_perception.stats import IntervalResult
 from report_fixture import FLOOR_BASES, MODELS, SEEDS, SHIFTS, bases_with, build_tree, seed_map
 
@@ -36,7 +36,7 @@ def test_status_at_its_edges() -> None:
 
 def _gate(root: Path, ds: str = "A", seeds=None) -> Gate:
     frames = load_row_frames(root, ds, MODELS, seeds or seed_map())
-    return Gate(DatasetFloor(ds, load_floor_results(root, ds), load_floor_frames(root, ds)), frames)
+    return dataset_gate(root, ds, frames)
 
 
 def test_the_floor_is_the_better_predictor_per_metric(tmp_path: Path) -> None:

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from compact_perception.core import io
-from compact_perception.core.classes import CARLA_PALETTE, index_to_palette, palette_to_index
+from compact_perception.core.classes import CARLA_PALETTE, palette_to_index
 from compact_perception.geometry import topview_center, topview_index
 
 
@@ -61,7 +61,7 @@ def test_atomic_dir_swaps_only_on_success(tmp_path):
 
 def test_palette_round_trip_and_unknown_colour():
     idx = np.arange(23, dtype=np.uint8).reshape(1, 23).repeat(2, 0)
-    img = index_to_palette(idx, CARLA_PALETTE)
+    img = CARLA_PALETTE[idx]
     np.testing.assert_array_equal(palette_to_index(img, CARLA_PALETTE), idx)
     img[0, 0] = (1, 2, 3)
     with pytest.raises(ValueError, match=r"sem_f: colour \(1, 2, 3\)"):

@@ -20,15 +20,16 @@ from compact_perception.core.registry import Registry
 from compact_perception.metrics import scores_from_means
 from compact_perception import efficiency as eff
 from compact_perception.report import schema
-from compact_perception.report.collect import (ReportInputError, aggregate_cells, Cell, collect_scale, load_floor_frames,
-                                               load_floor_results, load_results, load_row_frames, read_metrics)
-from compact_perception.report.gate import DatasetFloor
+from compact_perception.report.collect import (ReportInputError, aggregate_cells, Cell, collect_scale,
+                                               load_results, load_row_frames, read_metrics)
+from compact_perception.report.gate import DatasetFloor, dataset_floor
 from compact_perception.report.figures import plot_loss_weights, plot_qualitative, plot_training_curves
 from compact_perception.report.index import HEADLINE_KEY, HEADLINE_MODEL, build_reports
 from compact_perception.report.plots import write_plot_data
 from compact_perception.report.paper import load_paper_numbers
 from compact_perception.report.schema import ROW_ORDER, TASK_COLUMNS, paper_row
-from compact_perception.report.tables.table2 import build_table2, column_interval, table2_markdown, write_table2
+from compact_perception.report.tables.formats import write_files
+from compact_perception.report.tables.table2 import build_table2, column_interval, table2_files, table2_markdown
 from compact_perception.report.tables.table3 import build_table3
 from report_fixture import (ARGMAX_GAIN, COMPACT, FLOORS, MGN, MODELS, SEEDS, TASKS, bases_with, build_tree, n_epochs,
                             per_frame, run_dirs, seed_map, write_json, write_run)
@@ -151,7 +152,7 @@ def _frames(root: Path, datasets: tuple[str, ...] = ("A", "nuscenes"), seeds=SEE
 
 
 def _floors(root: Path, datasets: tuple[str, ...] = ("A", "nuscenes")) -> dict[str, DatasetFloor]:
-    return {ds: DatasetFloor(ds, load_floor_results(root, ds), load_floor_frames(root, ds)) for ds in datasets}
+    return {ds: dataset_floor(root, ds) for ds in datasets}
 
 
 def _stale_run(root: Path, ds: str = "A", model: str = "compact_1l", seed: int = 9) -> None:
@@ -166,7 +167,8 @@ def test_mean_sd_over_seeds_by_hand(tmp_path: Path) -> None:
     and 0.59, 0.60, 0.62 (IoU_SS); TM 1.64, 1.60, 1.52; MV of the four means 0.035 in every seed."""
     mets = _tree(tmp_path, ("A",))
     _stale_run(tmp_path)
-    write_table2(_results(tmp_path, ("A",)), tmp_path / "out", _frames(tmp_path, ("A",)), floors=_floors(tmp_path, ("A",)))
+    write_files(tmp_path / "out", table2_files(build_table2(_results(tmp_path, ("A",)), _frames(tmp_path, ("A",)),
+                                                            floors=_floors(tmp_path, ("A",)))))
     row = [r for r in csv.DictReader((tmp_path / "out/table2.csv").open()) if r["row_id"] == "compact_1l"][0]
     sd = math.sqrt(((0.11 - 0.29 / 3) ** 2 + (0.10 - 0.29 / 3) ** 2 + (0.08 - 0.29 / 3) ** 2) / 2)
     assert sd == pytest.approx(math.sqrt(7 / 30000))
@@ -204,7 +206,8 @@ def test_table2_numbers_bold_and_combination(tmp_path: Path) -> None:
     mets = _tree(tmp_path, jitter=JITTER)
     results = _results(tmp_path)
     training = {ds: sc.epochs for ds, sc in collect_scale(tmp_path, ("A", "nuscenes"), MODELS, results, SEEDMAP).items()}
-    paths = write_table2(results, tmp_path / "out", _frames(tmp_path), floors=_floors(tmp_path), training=training)
+    paths = write_files(tmp_path / "out", table2_files(build_table2(results, _frames(tmp_path), floors=_floors(tmp_path),
+                                                                    training=training)))
     assert sorted(p.name for p in paths) == ["table2.csv", "table2.md", "table2.tex"] and all(p.is_file() for p in paths)
     rows = list(csv.DictReader((tmp_path / "out/table2.csv").open()))
     first = [r["row_id"] for r in rows if r["dataset"] == rows[0]["dataset"]]

@@ -32,7 +32,7 @@ Package map (one concern per module):
                    variance (the linearised contrast's parts), power (MDE, decidability),
                    intervals (seed-cluster-t), verdicts, coverage (the check by simulation)
 - ``evaluate``     test scoring (floors, eq. (5) and arg-max scores, margins over the floor)
-- ``export``       ONNX export of a trained network and its check against PyTorch
+- ``onnx_export`` ONNX export of a trained network and its check against PyTorch
 - ``efficiency``   the model measurements of Table III: parameters, size, peak memory, FPS
 - ``timing``       batch-1 inference timing of the benchmark's variants
 - ``report``       tables, figures, claims, the loss-balancing study's table, and the index

@@ -69,7 +69,6 @@ import contextlib
 import logging
 import multiprocessing as mp
 import os
-import struct
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator, Mapping, Sequence
@@ -77,6 +76,7 @@ from typing import Any, Iterator, Mapping, Sequence
 import cv2
 import numpy as np
 import yaml
+from PIL import Image, UnidentifiedImageError
 from tqdm import tqdm
 
 from .core.cache import write_cache
@@ -265,33 +265,29 @@ def check_files_exist(plan: AuthorsPlan) -> None:
                                   f"split {sp.split!r}, listed in {sp.info_file}){more}")
 
 
-def _png_header(path: Path) -> tuple[int, int, int, int] | None:
-    """(width, height, bit depth, colour type) from a PNG's IHDR, or None if not a PNG."""
-    with open(path, "rb") as fh:
-        head = fh.read(26)
-    if head[:8] != b"\x89PNG\r\n\x1a\n":
+def _png_header(path: Path) -> tuple[int, int, str] | None:
+    """(width, height, PIL mode) of a PNG from its header (PIL opens lazily: nothing is decoded),
+    or None if PIL does not read it as a PNG (then the decoding step reports it)."""
+    try:
+        with Image.open(path, formats=["PNG"]) as img:
+            return img.size[0], img.size[1], img.mode
+    except UnidentifiedImageError:
         return None
-    if len(head) < 26 or head[12:16] != b"IHDR":
-        raise RecordError(f"{path}: truncated or corrupt PNG header")
-    w, h = struct.unpack(">II", head[16:24])
-    return w, h, head[24], head[25]
 
 
 def _check_npy_header(path: Path, shape: tuple[int, ...]) -> None:
+    """Shape, dtype and size of a ``.npy`` from its header: a read-only memory map reads nothing
+    else, and fails on a file shorter than its header says."""
     try:
-        with open(path, "rb") as fh:
-            version = np.lib.format.read_magic(fh)
-            reader = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
-            got, _, dtype = reader(fh)
-            offset = fh.tell()
+        arr = np.load(path, mmap_mode="r", allow_pickle=False)
+        got, dtype = arr.shape, arr.dtype
+        del arr
     except (OSError, ValueError, EOFError) as err:
         raise RecordError(f"{path}: corrupt or truncated npy ({_one_line(err)})") from None
     if tuple(got) != tuple(shape):
         raise RecordError(f"{path}: array of shape {tuple(got)}, expected {tuple(shape)} (channels first, 128 px)")
     if dtype.kind not in "biuf":
         raise RecordError(f"{path}: dtype {dtype}, expected a numeric array (float64 in the release)")
-    if os.path.getsize(path) < offset + int(np.prod(shape)) * dtype.itemsize:
-        raise RecordError(f"{path}: truncated npy ({os.path.getsize(path)} bytes for {tuple(shape)} {dtype})")
 
 
 def check_frame(frame_dir: str | os.PathLike, frame_id: str, n_seg: int, n_bev: int) -> None:
@@ -307,12 +303,12 @@ def check_frame(frame_dir: str | os.PathLike, frame_id: str, n_seg: int, n_bev: 
         head = _png_header(path)
         if head is None:
             continue  # not a PNG: checked when decoded
-        w, h, depth, ctype = head
+        w, h, mode = head
         if (w, h) != (SOURCE_SIZE, SOURCE_SIZE):
             raise RecordError(f"{path}: {w}x{h} image, expected {SOURCE_SIZE}x{SOURCE_SIZE} (the release's resolution)")
-        if want == "gray" and (ctype != 0 or depth != 8):
-            raise RecordError(f"{path}: PNG colour type {ctype}, bit depth {depth}; expected a single-channel "
-                              f"8-bit grayscale PNG (read /255 as the authors do)")
+        if want == "gray" and mode != "L":
+            raise RecordError(f"{path}: PNG mode {mode}; expected a single-channel 8-bit grayscale PNG (mode L, "
+                              f"read /255 as the authors do)")
 
 
 # ----------------------------------------------------------------------------- conversion

@@ -19,7 +19,7 @@ Methods (stated in every result so the report can quote them):
   bracketed by device synchronisation (``torch.cuda.synchronize`` on CUDA) so the clock reads
   finished work; the **median** latency gives FPS = 1000 / median_ms.
 - **ONNX Runtime** (issue 15, compact models): :func:`measure_onnx` exports the network to ONNX
-  (:func:`compact_perception.export.export_onnx`, a temporary file), checks ONNX Runtime's
+  (:func:`compact_perception.onnx_export.export_onnx`, a temporary file), checks ONNX Runtime's
   outputs against PyTorch's (max abs difference) and times ONNX Runtime's CPU execution
   provider at batch 1 the same way (warm-up excluded, median; ``run`` is synchronous), with
   as many intra-op threads as PyTorch uses.
@@ -175,7 +175,7 @@ def measure_onnx(model: nn.Module, batch: Batch, warmup: int = 10, runs: int = 5
     from pathlib import Path
 
     try:
-        from .export import export_onnx, onnxruntime_latency
+        from .onnx_export import export_onnx, onnxruntime_latency
 
         with tempfile.TemporaryDirectory(prefix="onnx_bench_") as tmp:
             path = Path(tmp) / "model.onnx"

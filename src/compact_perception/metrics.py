@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Callable, Collection, Literal, Mapping, Union
+from typing import Any, Callable, Collection, Literal, Mapping, Optional, Union
 
 import numpy as np
 import torch
@@ -61,8 +61,8 @@ __all__ = [
     "compute_metrics_per_sample",
     "iou_argmax_per_sample",
     "ARGMAX_TASKS",
-    "combine_tasks",
     "scores_from_means",
+    "score_terms",
     "total_metric_partial",
     "MV_DEFINITION",
     "class_confusion",
@@ -141,12 +141,21 @@ MV_DEFINITION = "population variance of the four test-set mean terms (paper eq. 
 SCORE_TERMS: tuple[str, ...] = catalog.metric_keys()
 
 
+def score_terms(scores: Mapping[str, Any]) -> Optional[tuple[Any, ...]]:
+    """The four terms of TM / MV (eq. 6, 7) from ``scores``, in :data:`SCORE_TERMS` order (the
+    arguments of :func:`total_metric` and :func:`metric_variance`); None if any is missing."""
+    if not all(k in scores for k in SCORE_TERMS):
+        return None
+    return tuple(scores[k] for k in SCORE_TERMS)
+
+
 def scores_from_means(means: Mapping[str, float]) -> dict[str, float]:
     """TM (eq. 6) and MV (eq. 7) from the four **test-set means** ``mae_de``, ``iou_ss``,
     ``iou_ls``, ``iou_bevp`` (Table II's definition); empty if any of the four is missing."""
-    if not all(k in means for k in SCORE_TERMS):
+    terms = score_terms(means)
+    if terms is None:
         return {}
-    vals = [float(means[k]) for k in SCORE_TERMS]
+    vals = [float(v) for v in terms]
     return {"tm": float(total_metric(*vals)), "mv": float(metric_variance(*vals))}
 
 
@@ -191,9 +200,10 @@ def compute_metrics(outputs: Mapping[str, Tensor], targets: Mapping[str, Tensor]
     for t in ("ss", "ls", "bevp"):
         if t in outputs and t in targets:
             out[f"iou_{t}"] = float(iou(outputs[t], targets[t]))
-    if all(k in out for k in SCORE_TERMS):
-        out["tm"] = float(total_metric(out["mae_de"], out["iou_ss"], out["iou_ls"], out["iou_bevp"]))
-        out["mv"] = float(metric_variance(out["mae_de"], out["iou_ss"], out["iou_ls"], out["iou_bevp"]))
+    terms = score_terms(out)
+    if terms is not None:
+        out["tm"] = float(total_metric(*terms))
+        out["mv"] = float(metric_variance(*terms))
     return out
 
 
@@ -226,8 +236,9 @@ def compute_metrics_per_sample(outputs: Mapping[str, Tensor], targets: Mapping[s
     for t in ("ss", "ls", "bevp"):
         if t in outputs and t in targets:
             out[f"iou_{t}"] = iou_per_sample(outputs[t], targets[t])
-    if all(k in out for k in SCORE_TERMS):
-        out["tm"] = total_metric(out["mae_de"], out["iou_ss"], out["iou_ls"], out["iou_bevp"])
+    terms = score_terms(out)
+    if terms is not None:
+        out["tm"] = total_metric(*terms)
     return out
 
 
@@ -236,36 +247,6 @@ def _num(x: Any) -> Union[float, np.ndarray]:
         x = x.detach().cpu().double().numpy()
     arr = np.asarray(x, dtype=np.float64)
     return float(arr) if arr.ndim == 0 else arr
-
-
-def _out(x: Union[float, np.ndarray]) -> Union[float, list[float]]:
-    return float(x) if np.ndim(x) == 0 else [float(v) for v in np.asarray(x)]
-
-
-def combine_tasks(
-    gradnorm: Mapping[str, Any], polarnet: Mapping[str, Any], chen: Mapping[str, Any]
-) -> dict[str, Union[float, list[float]]]:
-    """The "combination of baselines" row (SPEC 6): DE and SS from GradNorm-SegNet
-    (``mae_de``, ``iou_ss``), LS from PolarNet (``iou_ls``), BEVP from Chen et al.
-    (``iou_bevp``); returns those four plus ``tm`` (eq. 6) and ``mv`` (eq. 7).
-
-    Values may be scalars or per-test-frame sequences/tensors (same frame order in all
-    three). Scalars should be the test-set means (then ``mv`` is Table II's MV); per-frame
-    inputs give per-frame ``tm`` (whose mean is the combination's TM) and per-frame ``mv``,
-    which is eq. (7) of each frame and **not** Table II's MV.
-    """
-    m = {
-        "mae_de": _num(gradnorm["mae_de"]),
-        "iou_ss": _num(gradnorm["iou_ss"]),
-        "iou_ls": _num(polarnet["iou_ls"]),
-        "iou_bevp": _num(chen["iou_bevp"]),
-    }
-    shapes = {np.shape(v) for v in m.values()}
-    if len(shapes) != 1:
-        raise ValueError(f"combine_tasks: inputs must all be scalars or all have the same length, got shapes {shapes}")
-    m["tm"] = total_metric(m["mae_de"], m["iou_ss"], m["iou_ls"], m["iou_bevp"])
-    m["mv"] = metric_variance(m["mae_de"], m["iou_ss"], m["iou_ls"], m["iou_bevp"])
-    return {k: _out(v) for k, v in m.items()}
 
 
 # ----------------------------------------------------------------------------- field metrics

@@ -35,9 +35,9 @@ from .registry import Registry
 
 __all__ = [
     "TaskInfo", "DatasetInfo", "ModelInfo", "TASKS", "DATASETS", "MODELS",
-    "task_ids", "dataset_ids", "sim_dataset_ids", "model_ids", "compact_model_ids", "baseline_model_ids",
+    "task_ids", "dataset_ids", "sim_dataset_ids", "model_ids", "compact_model_ids",
     "metric_of", "metric_keys", "higher_is_better", "model_label", "table_model_ids", "combination_source",
-    "SOURCE_LABEL", "source_label",
+    "SOURCE_LABEL", "source_label", "STOP_PLATEAU", "STOP_CAP",
     "ScoreInfo", "SCORES", "table2_columns", "per_frame_columns", "column_label", "lower_is_better",
     "WeightingInfo", "WEIGHTING_METHODS", "weighting_info",
 ]
@@ -163,10 +163,6 @@ def compact_model_ids() -> tuple[str, ...]:
     return tuple(k for k in MODELS.keys() if MODELS[k].group == "compact")
 
 
-def baseline_model_ids() -> tuple[str, ...]:
-    return tuple(k for k in MODELS.keys() if MODELS[k].group == "baseline")
-
-
 def metric_of(task: str) -> str:
     """The per-frame test metric key of ``task`` (``de`` -> ``mae_de``)."""
     return TASKS[task].metric
@@ -239,3 +235,11 @@ def source_label(source: str) -> str:
 def weighting_info(key: str) -> WeightingInfo:
     """The report label and ``adaptive`` flag of the loss weighting ``key`` (no torch import)."""
     return WEIGHTING_METHODS[key]
+
+
+#: A run's ``summary.json`` ``stop_reason`` (written by training, read by the report): early
+#: stopping ended the run (``train.early_stop_patience`` epochs without a new best validation
+#: score: learning stopped, the run converged) ...
+STOP_PLATEAU = "plateau"
+#: ... or the epoch cap did (``datasets.<ds>.training.max_epochs`` or the recipe's).
+STOP_CAP = "max_epochs"

@@ -102,8 +102,3 @@ def palette_to_index(image: np.ndarray, palette: np.ndarray, *, name: str = "ima
         bad = image[~found][0]
         raise ValueError(f"{name}: colour {tuple(int(v) for v in bad)} is not in the class palette")
     return order[pos].astype(np.uint8)
-
-
-def index_to_palette(index: np.ndarray, palette: np.ndarray) -> np.ndarray:
-    """Colour an HxW class-index map with ``palette`` (inverse of :func:`palette_to_index`)."""
-    return palette[index]

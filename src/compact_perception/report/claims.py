@@ -53,9 +53,9 @@ from ..core.cache import frame_cluster
 from ..stats import (METHOD, MIN_SEEDS, NOT_DECIDABLE, CoverageResult, Design, MAX_SEEDS_TO_DECIDE, IntervalResult,
                      comparison_verdict, coverage, coverage_line, interval,
                      seed_interval, seeds_to_decide, verdict)
-from .collect import (CONVERGED, ReportInputError, SeedSpec, frame_comparison, list_runs, load_floor_frames,
-                      load_floor_results, load_row_frames, read_summary, seeds_for)
-from .gate import NO_FLOOR, DatasetFloor, Gate, Margin, failing_text
+from .collect import (CONVERGED, ReportInputError, SeedSpec, frame_comparison, list_runs, load_row_frames,
+                      read_summary, seeds_for)
+from .gate import NO_FLOOR, Gate, Margin, dataset_gate, failing_text
 from .paper import PaperNumbers
 from .schema import (COMBINATION, COMBINATION_MODELS, COMPACT, DATASET_LABEL, LOWER_IS_BETTER, MGN_FORMS, PAPER_MGN,
                      ROW_LABEL, TASK_COLUMNS, WEIGHT_KEYS, beats, column_stat, stat_columns, weight_key)
@@ -389,11 +389,6 @@ def _mgn_rows(ctx: _Context, mgn: str) -> list[ClaimRow]:
                           _pdiff(_paper_tm(paper, ds, COMBINATION), _paper_tm(paper, ds, PAPER_MGN)), model=mgn,
                           note=note))
     return rows
-
-
-def dataset_gate(root: Path, ds: str, frames: dict[str, list[pd.DataFrame]]) -> Gate:
-    """The gate of ``ds`` from the trivial predictors' outputs under ``root`` and the rows' ``frames``."""
-    return Gate(DatasetFloor(ds, load_floor_results(root, ds), load_floor_frames(root, ds)), frames)
 
 
 def claims_for_dataset(root: Path, ds: str, paper: PaperNumbers, frames: Optional[dict[str, list[pd.DataFrame]]] = None,

@@ -311,9 +311,9 @@ def load_npz(path: Path) -> Optional[dict[str, np.ndarray]]:
 #: The facts of a run's ``summary.json`` the report shows (how deep it trained).
 SUMMARY_FACTS: tuple[str, ...] = ("epochs_run", "best_epoch", "max_epochs", "stop_reason", "train_seconds",
                                   "stopped_early")
-#: ``stop_reason`` of a run that converged: early stopping ended it (validation stopped improving
-#: for ``train.early_stop_patience`` epochs); ``max_epochs`` means the safety cap did.
-CONVERGED = "plateau"
+#: ``stop_reason`` of a run that converged (:data:`~compact_perception.core.catalog.STOP_PLATEAU`);
+#: ``max_epochs`` (``STOP_CAP``) means the safety cap did.
+CONVERGED = catalog.STOP_PLATEAU
 
 
 @dataclass
@@ -484,13 +484,6 @@ def common_frames(groups: Sequence[Sequence[pd.DataFrame]]) -> pd.Index:
     if common is None or len(common) == 0:
         raise ReportInputError("per-frame scores: the runs compared share no test frame")
     return common.sort_values()
-
-
-def align(groups: Sequence[Sequence[pd.DataFrame]], columns: Sequence[str]) -> list[list[np.ndarray]]:
-    """The (frames, columns) arrays of every run of every group on the frames all of them
-    scored (sorted by frame id)."""
-    common = common_frames(groups)
-    return [[df.loc[common, list(columns)].to_numpy(dtype=float) for df in g] for g in groups]
 
 
 def frame_comparison(groups: Sequence[Sequence[pd.DataFrame]], columns: Sequence[str],

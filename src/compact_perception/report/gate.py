@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Optional, Sequence
 
 import numpy as np
@@ -33,11 +34,11 @@ import pandas as pd
 
 from ..floor import floor_of
 from ..stats import MIN_SEEDS, IntervalResult, interval, stat_mean
-from .collect import ModelResult, ReportInputError, frame_comparison
+from .collect import ModelResult, ReportInputError, frame_comparison, load_floor_frames, load_floor_results
 from .schema import FLOOR_IDS, METRIC_TASK, ROW_LABEL, TASK_COLUMNS, beats, column_stat, stat_columns
 
 __all__ = ["ABOVE", "BELOW", "UNSHOWN", "NO_FLOOR", "NO_DATA", "Margin", "DatasetFloor", "Gate", "status_of",
-           "failing_text", "margin_on_column"]
+           "failing_text", "margin_on_column", "dataset_floor", "dataset_gate"]
 
 ABOVE, BELOW, UNSHOWN = "above", "below", "not shown above"
 NO_FLOOR, NO_DATA = "no floor", "no data"
@@ -118,6 +119,16 @@ class DatasetFloor:
         value = self.value().get(metric)
         means = self.means()
         return next((t for t in FLOOR_IDS if t in means and means[t].get(metric) == value), None)
+
+
+def dataset_floor(root: Path, ds: str) -> DatasetFloor:
+    """The trivial predictors of ``ds`` from their outputs under ``root`` (:mod:`.collect`)."""
+    return DatasetFloor(ds, load_floor_results(Path(root), ds), load_floor_frames(Path(root), ds))
+
+
+def dataset_gate(root: Path, ds: str, frames: Optional[dict[str, list[pd.DataFrame]]]) -> "Gate":
+    """The gate of ``ds``: its floor read under ``root`` and the rows' per-frame scores ``frames``."""
+    return Gate(dataset_floor(root, ds), frames)
 
 
 class Gate:

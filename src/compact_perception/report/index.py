@@ -36,9 +36,9 @@ from ..core import io
 from ..core.catalog import MODELS, compact_model_ids, dataset_ids, metric_of, model_ids
 from ..core.layout import RunPaths
 from .claims import build_claims, claims_files, coverage_text, exact_counts, verdict_counts
-from .collect import (DatasetScale, ModelResult, SeedSpec, collect_scale, list_runs, load_floor_frames,
-                      load_floor_results, load_npz, load_results, load_row_frames, read_json, seeds_for)
-from .gate import DatasetFloor, Gate
+from .collect import (DatasetScale, ModelResult, SeedSpec, collect_scale, list_runs, load_npz, load_results,
+                      load_row_frames, read_json, seeds_for)
+from .gate import Gate, dataset_gate
 from .figures import plot_loss_weights, plot_qualitative, plot_training_curves
 from .paper import PaperNumbers, load_paper_numbers
 from .plots import write_plot_data
@@ -47,7 +47,7 @@ from .selection import selected_efficiency
 from .study import StudyOutputs, study_run_dirs, write_study_report
 from .tables.comparison import SPLITS, comparison_files, scale_lines
 from .tables.extra import build_extra_rows, extra_files
-from .tables.formats import write_files
+from .tables.formats import md_table, write_files
 from .tables.table2 import RowFrames, build_table2, table2_files
 from .tables.table3 import build_table3, table3_files
 
@@ -127,8 +127,7 @@ def read_inputs(root: Path, datasets: Sequence[str], models: Sequence[str], seed
     if efficiency is None:
         log.warning("%s missing: Table III skipped", eff_path)
     frames = {ds: load_row_frames(root, ds, list(models), seeds) for ds in datasets}
-    gates = {ds: Gate(DatasetFloor(ds, load_floor_results(root, ds), load_floor_frames(root, ds)), frames[ds])
-             for ds in datasets}
+    gates = {ds: dataset_gate(root, ds, frames[ds]) for ds in datasets}
     return ReportInputs(root, list(datasets), list(models), seeds, paper, results, frames, efficiency,
                         collect_scale(root, list(datasets), list(models), results, seeds), gates)
 
@@ -168,18 +167,17 @@ def headline_metrics(results: dict[str, dict[str, ModelResult]], claim_rows: Seq
 def _sources_section(parts: ReportParts) -> list[str]:
     """Per dataset: data source, frames, test frames, resolution, DVS and the models with results;
     then this run's scale beside the paper's."""
-    out = ["## Data sources and scale", "",
-           "| Dataset | Data source | Frames train/val/test | Test frames per run | Resolution | DVS | "
-           "Models with results |",
-           "|---|---|---|---|---|---|---|"]
+    rows = []
     for ds, sc in parts.scales.items():
         counts = "/".join(str(sc.counts.get(k, "?")) for k in SPLITS) if sc.counts else "?"
         mods = ", ".join(ROW_LABEL.get(m, m) for m in parts.results.get(ds, {})) or "none"
         dvs = "?" if sc.has_dvs is None else ("yes" if sc.has_dvs else "no")
         n_test = "/".join(map(str, sc.n_test_frames)) or "?"
-        out.append(f"| {DATASET_LABEL.get(ds, ds)} | {sc.source or 'unknown'} | {counts} | {n_test} | "
-                   f"{sc.resolution or '?'} | {dvs} | {mods} |")
-    return out + [""] + [f"- {s}" for s in parts.scale_text] + [""]
+        rows.append([DATASET_LABEL.get(ds, ds), f"{sc.source or 'unknown'}", counts, n_test,
+                     f"{sc.resolution or '?'}", dvs, mods])
+    table = md_table(["Dataset", "Data source", "Frames train/val/test", "Test frames per run", "Resolution", "DVS",
+                      "Models with results"], rows)
+    return ["## Data sources and scale", ""] + table.split("\n") + [f"- {s}" for s in parts.scale_text] + [""]
 
 
 def _seeds_overview(results: dict[str, dict[str, ModelResult]], scales: dict[str, DatasetScale]) -> list[str]:
@@ -193,12 +191,10 @@ def _seeds_overview(results: dict[str, dict[str, ModelResult]], scales: dict[str
         out += ["Every (dataset, model) is trained once per training seed (params.yaml `seeds` for the compact models, "
                 "`baseline_seeds` for the baselines; seed folders of other seeds are ignored). Every metric in the "
                 "tables is the mean ± sample sd over those seeds; the paper's per-frame variance is kept beside it.", ""]
-        out += ["| Model | Seeds (runs) |", "|---|---|"]
-        for m in [m for m in ROW_ORDER if m in per_model] + [m for m in per_model if m not in ROW_ORDER]:
-            texts = sorted({", ".join("?" if k is None else str(k) for k in ks) + f" ({len(ks)})"
-                            for ks in per_model[m]})
-            out.append(f"| {ROW_LABEL.get(m, m)} | {'; '.join(texts)} |")
-        out.append("")
+        rows = [[ROW_LABEL.get(m, m), "; ".join(sorted({", ".join("?" if k is None else str(k) for k in ks)
+                                                         + f" ({len(ks)})" for ks in per_model[m]}))]
+                for m in [m for m in ROW_ORDER if m in per_model] + [m for m in per_model if m not in ROW_ORDER]]
+        out += md_table(["Model", "Seeds (runs)"], rows).split("\n")
     frames = [f"{DATASET_LABEL.get(ds, ds)} {'/'.join(map(str, sc.n_test_frames)) or '?'}"
               for ds, sc in scales.items()]
     out += [f"Test frames scored per run: {', '.join(frames)}.", ""]

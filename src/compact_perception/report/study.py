@@ -41,11 +41,12 @@ from matplotlib.ticker import MaxNLocator  # noqa: E402
 from ..core import catalog, io  # noqa: E402
 from ..core.layout import RunPaths, study_paths  # noqa: E402
 from ..core.catalog import weighting_info as weighting_class  # noqa: E402  (label, adaptive: no torch)
-from .collect import (Cell, aggregate_cells, list_runs, load_floor_frames, load_floor_results,  # noqa: E402
+from .collect import (Cell, aggregate_cells, list_runs,  # noqa: E402
                       read_metrics, read_per_frame, read_summary, with_derived)
 from .figures import mean_curve as _mean_curve, read_weight_curves, save_figure  # noqa: E402
-from .gate import DatasetFloor, Gate, Margin  # noqa: E402
+from .gate import DatasetFloor, Gate, Margin, dataset_floor  # noqa: E402
 from .schema import DATASET_LABEL, METRIC_TASK  # noqa: E402
+from .tables.formats import csv_text, md_table  # noqa: E402
 
 log = logging.getLogger(__name__)
 
@@ -60,7 +61,7 @@ PAPER_FORMS: dict[str, str] = {"compact_15l": "static", "compact_15l_mgn": "mgn"
 #: The scores of a run: Table II's columns (the task metrics, TM, MV; eq. 6-7).
 RUN_SCORES: tuple[str, ...] = catalog.table2_columns()
 #: Every score column of a row, in table order.
-SCORES: tuple[str, ...] = RUN_SCORES + ("dm", "sec_per_epoch")
+STUDY_SCORES: tuple[str, ...] = RUN_SCORES + ("dm", "sec_per_epoch")
 #: Column headers: the label and which way is better; MV (the balance of the tasks) has no arrow.
 SCORE_MD: dict[str, str] = {
     **{k: f"{catalog.column_label(k)} {'↓' if catalog.lower_is_better(k) else '↑'}" for k in RUN_SCORES},
@@ -215,7 +216,7 @@ def collect_seed_results(root: Path, spec: StudySpec, methods: Optional[Sequence
                     missing.append(p.seed)
                     continue
                 res = with_derived(read_metrics(p.metrics_path, ds, m.id), f"{ds}/{m.id}/seed{p.seed}")
-                scores = {k: c.mean for k, c in res.scores.items() if k in SCORES}
+                scores = {k: c.mean for k, c in res.scores.items() if k in STUDY_SCORES}
                 found.append(SeedResult(ds, m.id, p.seed, scores, _sec_per_epoch(p.run_dir), p.run_dir, p.eval_dir))
             absent = [k for k in spec.seeds[ds] if k not in {r.seed for r in found} and k not in missing]
             if missing or (found and absent):
@@ -280,7 +281,7 @@ def gate_methods(results: Mapping[str, Mapping[str, Sequence[SeedResult]]], meth
 
 @dataclass
 class StudyRow:
-    """One (dataset, method): every score of :data:`SCORES` as a :class:`~.collect.Cell` over
+    """One (dataset, method): every score of :data:`STUDY_SCORES` as a :class:`~.collect.Cell` over
     its seeds (absent when no run has it; Δm absent for a single-task arm and for a method not
     above the floor); ``below``: the margins on which it is not above the floor."""
 
@@ -344,14 +345,14 @@ def weighting_csv(rows: Sequence[StudyRow]) -> str:
     for r in rows:
         rec: dict[str, Any] = {"dataset": r.dataset, "method": r.method.id, "label": r.method.label,
                                "n_seeds": r.n_seeds}
-        for k in SCORES:
+        for k in STUDY_SCORES:
             rec[f"{k}_mean"] = _csv_value(r.cells.get(k), False)
             rec[f"{k}_sd"] = _csv_value(r.cells.get(k), True)
         rec["above_floor"] = r.above_floor
         records.append(rec)
-    columns = (["dataset", "method", "label", "n_seeds"] + [f"{k}_{s}" for k in SCORES for s in ("mean", "sd")]
+    columns = (["dataset", "method", "label", "n_seeds"] + [f"{k}_{s}" for k in STUDY_SCORES for s in ("mean", "sd")]
                + ["above_floor"])
-    return pd.DataFrame(records, columns=columns).to_csv(index=False, float_format="%.10g", na_rep="")
+    return csv_text(columns, [[rec[c] for c in columns] for rec in records], float_format="%.10g")
 
 
 def _fmt(cell: Optional[Cell], key: str) -> str:
@@ -397,7 +398,7 @@ def weighting_markdown(rows: Sequence[StudyRow], spec: StudySpec, references: Ma
            f"interval of its margin over the floor above 0, with at least 3 seeds: Table II's rule); the others show "
            f"`{BELOW_FLOOR}`, and the line under the table names the tasks. A single-task reference is checked on "
            "its own task.", ""]
-    cols = list(SCORES)
+    cols = list(STUDY_SCORES)
     for ds in spec.datasets:
         label = dataset_label.get(ds, ds)
         out += [f"## {label}", ""]
@@ -409,12 +410,9 @@ def weighting_markdown(rows: Sequence[StudyRow], spec: StudySpec, references: Ma
         if not ds_rows:
             out += ["No runs on this dataset yet.", ""]
         else:
-            out += ["| Method | Seeds | " + " | ".join(SCORE_MD[k] for k in cols) + " |",
-                    "|---|---|" + "---|" * len(cols)]
-            for r in ds_rows:
-                cells = [_cell(r, k) for k in cols]
-                out.append(f"| {r.method.label} | {r.n_seeds} | " + " | ".join(cells) + " |")
-            out.append("")
+            table = md_table(["Method", "Seeds", *(SCORE_MD[k] for k in cols)],
+                             [[r.method.label, str(r.n_seeds), *(_cell(r, k) for k in cols)] for r in ds_rows])
+            out += table.split("\n")
             gated = [f"{r.method.label} ({r.above_floor[4:]})" for r in ds_rows if r.below]
             if gated:
                 out += ["Not above the floor on every task (Δm not reported): " + "; ".join(gated) + ".", ""]
@@ -511,7 +509,7 @@ def write_study_report(root: Path, params: Any, out_tables: Path, out_figures: P
     floors = dict(floors or {})
     for ds in spec.datasets:
         if ds not in floors:
-            floors[ds] = DatasetFloor(ds, load_floor_results(Path(root), ds), load_floor_frames(Path(root), ds))
+            floors[ds] = dataset_floor(Path(root), ds)
     references: dict[str, dict[str, float]] = {}
     notes: dict[str, list[str]] = {}
     for ds in spec.datasets:

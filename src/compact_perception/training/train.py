@@ -59,13 +59,7 @@ from .state import RunPaths, RunSpec, RunState
 log = logging.getLogger(__name__)
 
 __all__ = ["train_run", "run_seed", "run_digest", "cache_fingerprint", "seed_everything", "make_optimizer",
-           "selection_score", "STOP_PLATEAU", "STOP_CAP"]
-
-#: ``summary.json``'s ``stop_reason``: early stopping ended the run (``train.early_stop_patience``
-#: epochs without a new best validation score: learning stopped) ...
-STOP_PLATEAU = "plateau"
-#: ... or the epoch cap did (``datasets.<ds>.training.max_epochs`` or the recipe's).
-STOP_CAP = "max_epochs"
+           "selection_score"]
 
 
 def run_seed(params: Params, dataset_id: str, seed: int) -> int:
@@ -367,7 +361,7 @@ def _interrupt(run: RunState, epoch: int) -> None:
 def _export_best(run: RunState) -> dict:
     """Write the best checkpoint's network as ONNX (issue 15) and check it against PyTorch on one
     validation frame; returns the largest absolute output difference."""
-    from ..export import export_onnx
+    from ..onnx_export import export_onnx
 
     spec = run.spec
     best = read_checkpoint(spec.paths.best, spec.device, f"delete {spec.paths.last} to retrain from scratch")
@@ -388,7 +382,7 @@ def _finish(run: RunState) -> dict:
         "best_val_score": run.best_score, "untrained_val_score": run.untrained_score,
         "epochs_run": len(run.history), "max_epochs": run.max_epochs, "stopped_early": run.stopped_early,
         # why it ended (section IV-D): validation stopped improving, or the safety cap
-        "stop_reason": STOP_PLATEAU if run.stopped_early else STOP_CAP,
+        "stop_reason": catalog.STOP_PLATEAU if run.stopped_early else catalog.STOP_CAP,
         "train_seconds": round(run.elapsed(), 2),
         "params": int(sum(p.numel() for p in run.model.parameters())), "world_size": spec.dist.world_size,
         "final_weights": {k: v for k, v in (run.history[-1] if run.history else {}).items() if k.startswith("w_")},

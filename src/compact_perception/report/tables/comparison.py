@@ -11,7 +11,8 @@ from ..collect import Cell, DatasetScale
 from ..paper import PaperCell, PaperNumbers
 from ..schema import (COLUMN_MD, COLUMN_TEX, COMBINATION, COMBINATION_SOURCE, DATASET_LABEL, ROW_LABEL, TABLE2_COLUMNS,
                       TASK_COLUMNS, paper_row)
-from .formats import (NOT_APPLICABLE, csv_text, fmt_num, fmt_seeds, fmt_var, md_table, table_files, tex_escape,
+from .formats import (NOT_APPLICABLE, booktabs, csv_text, fmt_num, fmt_seeds, fmt_var, md_table, table_files,
+                      tex_escape,
                       training_text)
 from .table2 import MGN_NOTE, Table2Row
 from .table3 import Table3Row
@@ -21,7 +22,7 @@ _Row = TypeVar("_Row", Table2Row, Table3Row)
 
 
 @dataclass
-class Comparison:
+class PaperComparison:
     """One (dataset, row, column) with the paper's and this run's numbers. ``ours``: mean over
     the seeds, ``ours_std`` the sample sd over them, ``ours_var`` the per-frame variance (mean
     over seeds); ``paper_row`` the paper's row it is compared with."""
@@ -47,10 +48,10 @@ def _with_paper_rows(tables: Mapping[str, Sequence[_Row]]) -> Iterator[tuple[str
             yield ds, r, paper_row(r.row_id)
 
 
-def _table2_comparisons(paper: PaperNumbers, table2: dict[str, list[Table2Row]]) -> list[Comparison]:
+def _table2_comparisons(paper: PaperNumbers, table2: dict[str, list[Table2Row]]) -> list[PaperComparison]:
     """Table II: the paper's mean and frame variance beside this run's mean, sd and frame variance;
     the combination's task cells the paper leaves blank are its source models' printed cells."""
-    out: list[Comparison] = []
+    out: list[PaperComparison] = []
     for ds, r, prid in _with_paper_rows(table2):
         prow = paper.table2_row(ds, prid)
         for col in TABLE2_COLUMNS:
@@ -66,7 +67,7 @@ def _table2_comparisons(paper: PaperNumbers, table2: dict[str, list[Table2Row]])
             cell = r.cells.get(col) if r.available or r.cells.get(col) is not None else None
             if pv is None and cell is None:
                 continue
-            out.append(Comparison(ds, "II", r.row_id, col, pv, pc.var if pc else None,
+            out.append(PaperComparison(ds, "II", r.row_id, col, pv, pc.var if pc else None,
                                   bool(pc.var_below) if pc else False,
                                   cell.mean if cell else None, cell.var if cell else None,
                                   cell.std if cell else None, cell.n_seeds if cell else None,
@@ -74,9 +75,9 @@ def _table2_comparisons(paper: PaperNumbers, table2: dict[str, list[Table2Row]])
     return out
 
 
-def _table3_comparisons(paper: PaperNumbers, table3: dict[str, list[Table3Row]]) -> list[Comparison]:
+def _table3_comparisons(paper: PaperNumbers, table3: dict[str, list[Table3Row]]) -> list[PaperComparison]:
     """Table III: parameters and size (the paper's per-copy numbers times its copies), memory, FPS."""
-    out: list[Comparison] = []
+    out: list[PaperComparison] = []
     for ds, r, prid in _with_paper_rows(table3):
         p3 = paper.table3_row(ds, prid)
         if p3 is None:
@@ -90,13 +91,13 @@ def _table3_comparisons(paper: PaperNumbers, table3: dict[str, list[Table3Row]])
         for col, (pv3, ov) in pairs.items():
             if pv3 is None and ov is None:
                 continue
-            out.append(Comparison(ds, "III", r.row_id, col, None if pv3 is None else float(pv3),
+            out.append(PaperComparison(ds, "III", r.row_id, col, None if pv3 is None else float(pv3),
                                   ours=None if ov is None else float(ov), paper_row=prid))
     return out
 
 
 def compare(paper: PaperNumbers, table2: dict[str, list[Table2Row]],
-            table3: Optional[dict[str, list[Table3Row]]] = None) -> list[Comparison]:
+            table3: Optional[dict[str, list[Table3Row]]] = None) -> list[PaperComparison]:
     """Paper numbers beside this run's, for every cell either side has (Table II, then Table III)."""
     return _table2_comparisons(paper, table2) + _table3_comparisons(paper, table3 or {})
 
@@ -145,19 +146,19 @@ def _cmp_text(v: Optional[float], var: Optional[float] = None, below: bool = Fal
     return t
 
 
-def _ours_text(c: Comparison, latex: bool = False) -> str:
+def _ours_text(c: PaperComparison, latex: bool = False) -> str:
     """Table II: mean ± sd over seeds (``(n=1)`` for one seed); Table III: the number."""
     if c.table != "II" or c.ours is None:
         return _cmp_text(c.ours, col=c.column, latex=latex)
     return fmt_seeds(Cell(c.ours, c.ours_var, c.ours_std, c.n_seeds or 1), latex)
 
 
-def _ours_var(c: Comparison, latex: bool = False) -> str:
+def _ours_var(c: PaperComparison, latex: bool = False) -> str:
     """Table II: this run's variance over test frames (mean over seeds)."""
     return "" if c.table != "II" or c.ours_var is None else fmt_var(c.ours_var, latex=latex)
 
 
-def _diff(c: Comparison) -> str:
+def _diff(c: PaperComparison) -> str:
     """Table II: this run (mean over seeds) minus the paper; Table III: ratio this run / paper."""
     if c.paper is None or c.ours is None:
         return ""
@@ -166,7 +167,7 @@ def _diff(c: Comparison) -> str:
     return f"{c.ours - c.paper:+.3f}"
 
 
-def _cmp_label(c: Comparison) -> str:
+def _cmp_label(c: PaperComparison) -> str:
     label = ROW_LABEL.get(c.row_id, c.row_id)
     if c.paper_row and c.paper_row != c.row_id:
         label += f" (paper: {ROW_LABEL.get(c.paper_row, c.paper_row).split(' (')[0]})"
@@ -181,7 +182,7 @@ CMP_NOTE = ("Paper: Table II cells mean ± variance over test frames as printed.
             "context); sizes in MB.")
 
 
-def comparison_markdown(rows: list[Comparison], lines: list[str]) -> str:
+def comparison_markdown(rows: list[PaperComparison], lines: list[str]) -> str:
     head = "\n".join(f"- {s}" for s in lines) + "\n\n" if lines else ""
     body = [[DATASET_LABEL.get(c.dataset, c.dataset), c.table, _cmp_label(c),
              COLUMN_MD.get(c.column, c.column), _cmp_text(c.paper, c.paper_var, c.paper_var_below, c.column),
@@ -192,24 +193,22 @@ def comparison_markdown(rows: list[Comparison], lines: list[str]) -> str:
     return head + md_table(header, body, ["---"] * 4 + ["---:"] * 4) + "\n" + CMP_NOTE + "\n"
 
 
-def comparison_latex(rows: list[Comparison], lines: list[str]) -> str:
-    out = ["% Paper vs reproduced. Requires \\usepackage{booktabs}."] + [f"% {tex_escape(s)}" for s in lines]
-    out += [f"% {tex_escape(CMP_NOTE.replace('**', ''))}"]
-    out += ["\\begin{tabular}{llllrrrr}", "\\toprule",
-            "Dataset & Table & Model & Metric & Paper (mean $\\pm$ var frames) & This run (mean $\\pm$ sd seeds) "
-            "& This run var (frames) & Diff \\\\", "\\midrule"]
-    for c in rows:
-        diff = _diff(c).replace("x", "$\\times$")
-        out.append(" & ".join([tex_escape(DATASET_LABEL.get(c.dataset, c.dataset)), c.table,
-                               tex_escape(_cmp_label(c)),
-                               COLUMN_TEX.get(c.column, tex_escape(c.column)),
-                               _cmp_text(c.paper, c.paper_var, c.paper_var_below, c.column, True).replace(",", "{,}"),
-                               _ours_text(c, True).replace(",", "{,}"), _ours_var(c, True), diff]) + " \\\\")
-    out += ["\\bottomrule", "\\end{tabular}", ""]
-    return "\n".join(out)
+def comparison_latex(rows: list[PaperComparison], lines: list[str]) -> str:
+    body = [" & ".join([tex_escape(DATASET_LABEL.get(c.dataset, c.dataset)), c.table, tex_escape(_cmp_label(c)),
+                        COLUMN_TEX.get(c.column, tex_escape(c.column)),
+                        _cmp_text(c.paper, c.paper_var, c.paper_var_below, c.column, True).replace(",", "{,}"),
+                        _ours_text(c, True).replace(",", "{,}"), _ours_var(c, True),
+                        _diff(c).replace("x", "$\\times$")])
+            for c in rows]
+    return "\n".join(booktabs(
+        ["Paper vs reproduced. Requires \\usepackage{booktabs}.", *(tex_escape(s) for s in lines),
+         tex_escape(CMP_NOTE.replace('**', ''))],
+        "llllrrrr",
+        "Dataset & Table & Model & Metric & Paper (mean $\\pm$ var frames) & This run (mean $\\pm$ sd seeds) "
+        "& This run var (frames) & Diff", [body]))
 
 
-def comparison_csv(rows: list[Comparison]) -> str:
+def comparison_csv(rows: list[PaperComparison]) -> str:
     header = ["dataset", "table", "row_id", "paper_row", "column", "paper", "paper_var", "paper_var_below",
               "reproduced", "reproduced_std", "reproduced_var", "n_seeds"]
     return csv_text(header, [[c.dataset, c.table, c.row_id, c.paper_row, c.column, c.paper, c.paper_var,

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import io as _io
+import math
 from pathlib import Path
 from collections import Counter
 from typing import Any, Iterable, Mapping, Optional, Sequence
@@ -92,14 +93,34 @@ def md_table(header: list[str], rows: list[list[str]], align: Optional[list[str]
     return "\n".join(lines) + "\n"
 
 
-def csv_text(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:
-    """CSV with ``\\n`` line ends; ``None`` is an empty cell, a float its ``repr`` (every digit)."""
+def booktabs(comments: Sequence[str], colspec: str, header: str, groups: Iterable[Sequence[str]]) -> list[str]:
+    """The lines of a booktabs ``tabular`` (``\\usepackage{booktabs}``): each of ``comments`` as a
+    ``% `` line, the column spec, the ``&``-joined ``header``, then each group of ``&``-joined body
+    rows, the groups split by ``\\midrule``; the last line empty (the text ends with a line end)."""
+    lines = [f"% {c}" for c in comments]
+    lines += [f"\\begin{{tabular}}{{{colspec}}}", "\\toprule", header + " \\\\", "\\midrule"]
+    for k, group in enumerate(groups):
+        if k:
+            lines.append("\\midrule")
+        lines += [row + " \\\\" for row in group]
+    return lines + ["\\bottomrule", "\\end{tabular}", ""]
+
+
+def csv_text(header: Sequence[str], rows: Iterable[Sequence[Any]], float_format: Optional[str] = None) -> str:
+    """CSV with ``\\n`` line ends; ``None`` is an empty cell, a float its ``repr`` (every digit), or
+    ``float_format % v`` where given (then a NaN is an empty cell too: the study's ``%.10g``)."""
     buf = _io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(header)
     for r in rows:
-        w.writerow(["" if v is None else (repr(v) if isinstance(v, float) else v) for v in r])
+        w.writerow(["" if v is None else (_csv_float(v, float_format) if isinstance(v, float) else v) for v in r])
     return buf.getvalue()
+
+
+def _csv_float(v: float, float_format: Optional[str]) -> str:
+    if float_format is None:
+        return repr(v)
+    return "" if math.isnan(v) else float_format % v
 
 
 def table_files(stem: str, md: str, tex: str, csv_body: str) -> dict[str, str]:

@@ -43,7 +43,6 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Mapping, Optional, Sequence
 
 import pandas as pd
@@ -55,9 +54,9 @@ from ..gate import ABOVE, BELOW, NO_FLOOR, UNSHOWN, DatasetFloor, Gate
 from ..schema import (COLUMN_MD, COLUMN_TEX, COMBINATION, COMBINATION_MODELS, COMBINATION_SOURCE, DATASET_LABEL,
                       FLOOR_IDS, FLOOR_LABEL, LOWER_IS_BETTER, METRIC_TASK, ROW_LABEL, ROW_ORDER, TABLE2_COLUMNS,
                       TASK_COLUMNS, beats, column_stat, stat_columns)
-from .formats import (BELOW_FLOOR_MARK, BELOW_FLOOR_TEX, INCONCLUSIVE_MARK, NOT_APPLICABLE, NOT_AVAILABLE,
+from .formats import (BELOW_FLOOR_MARK, BELOW_FLOOR_TEX, INCONCLUSIVE_MARK, NOT_APPLICABLE, NOT_AVAILABLE, booktabs,
                       UNSHOWN_MARK, UNSHOWN_TEX, bold, csv_text, fmt_num, fmt_seeds, fmt_var, md_table, table_files,
-                      tex_escape, training_text, write_files)
+                      tex_escape, training_text)
 
 log = logging.getLogger(__name__)
 
@@ -383,20 +382,18 @@ def table2_markdown(tables: dict[str, list[Table2Row]]) -> str:
 
 def table2_latex(tables: dict[str, list[Table2Row]]) -> str:
     header = _header(True)
-    lines = ["% Table II (reproduced). Requires \\usepackage{booktabs}.",
-             "% " + tex_escape(table2_caption(tables).replace("**", "").replace("`", "")),
-             "\\begin{tabular}{llrl" + "c" * (len(header) - 5) + "l}", "\\toprule",
-             " & ".join(h if "$" in h else tex_escape(h) for h in header) + " \\\\", "\\midrule"]
-    for k, (ds, rows) in enumerate(tables.items()):
-        if k:
-            lines.append("\\midrule")
-        for i, r in enumerate(rows):
-            first = tex_escape(DATASET_LABEL.get(ds, ds)) if i == 0 else ""
-            texts = _row_texts(r, True)
-            lead = " & ".join(tex_escape(t) for t in _lead(r))
-            lines.append(f"{first} & {tex_escape(r.label)} & {lead} & " + " & ".join(texts[:-1])
-                         + f" & {tex_escape(texts[-1])} \\\\")
-    lines += ["\\bottomrule", "\\end{tabular}", ""]
+
+    def row(first: str, r: Table2Row) -> str:
+        texts = _row_texts(r, True)
+        lead = " & ".join(tex_escape(t) for t in _lead(r))
+        return f"{first} & {tex_escape(r.label)} & {lead} & " + " & ".join(texts[:-1]) + f" & {tex_escape(texts[-1])}"
+
+    lines = booktabs(["Table II (reproduced). Requires \\usepackage{booktabs}.",
+                      tex_escape(table2_caption(tables).replace("**", "").replace("`", ""))],
+                     "llrl" + "c" * (len(header) - 5) + "l",
+                     " & ".join(h if "$" in h else tex_escape(h) for h in header),
+                     [[row(tex_escape(DATASET_LABEL.get(ds, ds)) if i == 0 else "", r) for i, r in enumerate(rows)]
+                      for ds, rows in tables.items()])
     lines += [f"% $^\\dagger$ {tex_escape(n)}" for n in table2_notes(tables)]
     return "\n".join(lines) + ("\n" if table2_notes(tables) else "")
 
@@ -437,12 +434,3 @@ def table2_csv(tables: dict[str, list[Table2Row]]) -> str:
 def table2_files(tables: dict[str, list[Table2Row]]) -> dict[str, str]:
     """``table2.{md,tex,csv}`` of the built table (file name -> text)."""
     return table_files("table2", table2_markdown(tables), table2_latex(tables), table2_csv(tables))
-
-
-def write_table2(results: dict[str, dict[str, ModelResult]], out_dir: Path,
-                 frames: Optional[dict[str, RowFrames]] = None, *,
-                 floors: Optional[Mapping[str, DatasetFloor]] = None,
-                 training: Optional[Mapping[str, Training]] = None) -> list[Path]:
-    """Build Table II (:func:`build_table2`) and write ``table2.{md,tex,csv}`` under ``out_dir``;
-    returns the paths."""
-    return write_files(out_dir, table2_files(build_table2(results, frames, floors=floors, training=training)))

@@ -9,7 +9,7 @@ from typing import Any, Mapping, Optional
 
 from ...core import catalog
 from ..schema import COMBINATION, COMBINATION_MODELS, COMPACT, DATASET_LABEL, ROW_LABEL, ROW_ORDER
-from .formats import NOT_AVAILABLE, csv_text, fmt_num, md_table, table_files, tex_escape
+from .formats import NOT_AVAILABLE, booktabs, csv_text, fmt_num, md_table, table_files, tex_escape
 
 #: How Table III names a row where the measured model differs from Table II's (GradNorm SegNet
 #: runs once per camera view).
@@ -131,18 +131,11 @@ def table3_markdown(tables: dict[str, list[Table3Row]], efficiency: dict[str, An
 
 
 def table3_latex(tables: dict[str, list[Table3Row]], efficiency: dict[str, Any]) -> str:
-    lines = ["% Table III (reproduced). Requires \\usepackage{booktabs}.",
-             "% " + _note(efficiency).replace("**", ""),
-             "\\begin{tabular}{ll" + "r" * 9 + "l}", "\\toprule",
-             " & ".join(tex_escape(h) for h in _header(efficiency)) + " \\\\", "\\midrule"]
-    for k, (ds, rows) in enumerate(tables.items()):
-        if k:
-            lines.append("\\midrule")
-        for i, r in enumerate(rows):
-            first = tex_escape(_group_label(ds)) if i == 0 else ""
-            lines.append(f"{first} & {tex_escape(r.label)} & " + " & ".join(tex_escape(t) for t in _texts(r)) + " \\\\")
-    lines += ["\\bottomrule", "\\end{tabular}", ""]
-    return "\n".join(lines)
+    return "\n".join(booktabs(
+        ["Table III (reproduced). Requires \\usepackage{booktabs}.", _note(efficiency).replace("**", "")],
+        "ll" + "r" * 9 + "l", " & ".join(tex_escape(h) for h in _header(efficiency)),
+        [[f"{tex_escape(_group_label(ds)) if i == 0 else ''} & {tex_escape(r.label)} & "
+          + " & ".join(tex_escape(t) for t in _texts(r)) for i, r in enumerate(rows)] for ds, rows in tables.items()]))
 
 
 def table3_csv(tables: dict[str, list[Table3Row]], efficiency: dict[str, Any]) -> str:
