@@ -14,7 +14,7 @@ below it):
    ``preprocess``, ``losses``, ``metrics``, ``floor``, ``plan``, ``schedule`` (the plateau rule
    shared by training and MGN), ``qualitative`` (the qualitative grid, drawn by the data stages
    and the report), ``figures_lidar``, ``efficiency`` (the model measurements of Table III),
-   ``export`` (ONNX export of a network).
+   ``onnx_export`` (ONNX export of a network).
 2. ``training``, ``evaluate`` and ``timing`` (the benchmark's inference variants, which use
    ``training.precision``) -- they run the networks of layer 1.
 3. ``report`` and ``stats`` (the report's statistics) -- they read what layer 2 wrote.
@@ -39,7 +39,7 @@ LAYERS: dict[str, int] = {
     **{name: LEAF for name in (
         "data", "models", "weighting", "geometry", "dvs", "lidar", "world", "nuscenes", "authors", "carla",
         "preprocess", "losses", "metrics", "floor", "plan", "schedule", "qualitative", "figures_lidar",
-        "efficiency", "export")},
+        "efficiency", "onnx_export")},
     "training": RUN, "evaluate": RUN, "timing": RUN,
     "report": REPORT, "stats": REPORT,
 }
