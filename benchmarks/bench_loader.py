@@ -15,7 +15,7 @@ processes and pinned memory off and on (pinning needs CUDA; without it torch lea
     samples/s = tflops x 1e12 x util / FLOPs per sample.
 
 It ends with the verdict "loader keeps up / does not (by N x), limited by ...". ``--quick`` (the
-test): 2 batches per loader setting, workers 0 and 2, one timed step.
+test): 4 batches per loader setting, workers 0 and 2, one timed step.
 """
 from __future__ import annotations
 
@@ -91,7 +91,7 @@ def main() -> None:
                     help="effective GPU throughput in TFLOP/s (default 100: bf16 dense on an H100-class GPU, "
                          "a conservative share of its ~990 peak)")
     ap.add_argument("--util", type=float, default=0.4, help="utilisation of --gpu-tflops the step reaches")
-    ap.add_argument("--quick", action="store_true", help="2 batches per setting, workers 0,2, one step (the test)")
+    ap.add_argument("--quick", action="store_true", help="4 batches per setting, workers 0,2, one step (the test)")
     args = ap.parse_args()
     try:
         workers = [int(w) for w in args.workers.split(",")]
@@ -103,7 +103,7 @@ def main() -> None:
         sys.exit(f"error: --gpu-tflops must be > 0 and --util in (0, 1], got {args.gpu_tflops}, {args.util}")
     if args.cache is not None and not (args.cache / "train").is_dir():
         sys.exit(f"error: --cache {args.cache}: no train/ split (expected a cache as docs/data-formats.md describes)")
-    max_batches, steps = (2, 1) if args.quick else (None, args.steps)
+    max_batches, steps = (4, 1) if args.quick else (None, args.steps)
     if args.quick and args.workers == "0,2,4":
         workers = [0, 2]
     torch.set_num_threads(max(1, torch.get_num_threads()))

@@ -92,7 +92,7 @@ def run_check(rows: list[Row], check: str, device: torch.device, precision: str,
         if os.environ.get("GPU_CHECK_TRACEBACK"):
             traceback.print_exc()
     rows.append(Row(check, device.type, precision, time.perf_counter() - t0, result, status))
-    print(f"  {check} [{precision}]: {result}", flush=True)
+    print(f"  {check} [{precision}] {rows[-1].seconds:.1f} s: {result}", flush=True)
 
 
 def skip(rows: list[Row], check: str, device: torch.device, precision: str, why: str = SKIP_CUDA) -> None:
