@@ -5,7 +5,7 @@ export DVC_NO_ANALYTICS := 1
 # Stage commands call `python`: make it the project venv.
 export PATH := $(CURDIR)/.venv/bin:$(PATH)
 
-.PHONY: setup repro test test-fast bench clean-venv
+.PHONY: setup repro test test-fast bench gpu-check clean-venv
 
 $(STAMP): requirements.txt pyproject.toml
 	test -x $(PY) || python3 -m venv .venv
@@ -30,6 +30,11 @@ test-fast: $(STAMP)
 ## Print the speed/memory figures of every benchmark script.
 bench: $(STAMP)
 	for b in benchmarks/bench_*.py; do echo "== $$b"; $(PY) $$b || exit 1; done
+
+## Every path past the CPU default on one GPU, in minutes (docs/gpu.md); exits non-zero on a failure.
+## Extra arguments: make gpu-check ARGS="--device cpu --size 32"
+gpu-check: $(STAMP)
+	$(PY) benchmarks/gpu_check.py $(ARGS)
 
 clean-venv:
 	rm -rf .venv

@@ -1,0 +1,363 @@
+"""The GPU check: every path past the CPU default, in minutes, on the first GPU (`make gpu-check`).
+
+    .venv/bin/python benchmarks/gpu_check.py [--device cuda|cpu] [--size 128] [--steps 3]
+
+On a CUDA device (the default) it runs, at the paper's 128 px:
+
+- ``train_step``: training steps of every registered model (core/catalog.py) in fp32, bf16 and
+  fp16 (fp16 with the GradScaler), through the project's own step
+  (:func:`compact_perception.training.epoch.train_step` on a run built by the training loop's
+  setup step); compact_15l_mgn_authors (MGN, ``authors_mode: true``) does its weight update under
+  autocast on the last step and the check asserts the weights moved and stay finite;
+- ``pipeline.train``: the real stage on a tiny synthetic cache (tests/synthetic.py) with a params
+  file in a temporary folder: one epoch interrupted, then ``python -m pipeline.train`` resumes it,
+  finishes, and writes best.pt, last.pt and the ONNX export's summary (checked);
+- ``ddp``: one ``torchrun --standalone --nproc_per_node=1`` training step with the process group on
+  nccl (gloo on a CPU) and the gradient / weight / scalar all-reduces of training/distributed.py;
+- ``fps``: Table III's batch-1 inference FPS with device synchronisation
+  (:func:`compact_perception.timing.benchmark_variants`: fp32, fp16, bf16, channels-last, CUDA graphs).
+
+It prints one table (check, device, precision, seconds, result) and exits 1 if any check failed.
+``--device cpu --size 32`` runs the same code on a CPU (one step each, gloo), printing
+``skipped: needs CUDA`` for what a CPU cannot run (fp16 with the GradScaler); the slow test
+suite runs it so (tests/test_gpu_check.py).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import textwrap
+import time
+import traceback
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # tests/synthetic.py: the synthetic cache writer
+
+import torch  # noqa: E402
+import yaml  # noqa: E402
+
+from compact_perception.core import catalog  # noqa: E402
+from compact_perception.core.config import load_params  # noqa: E402
+from compact_perception.data import make_loader  # noqa: E402
+from compact_perception.training import distributed as ddp  # noqa: E402
+from compact_perception.training.epoch import train_step  # noqa: E402
+from compact_perception.training.precision import cpu_has_native_bf16  # noqa: E402
+from compact_perception.training.state import RunPaths, RunSpec  # noqa: E402
+from compact_perception.training.train import _setup  # noqa: E402  (the loop's own setup step)
+
+PRECISIONS = ("fp32", "bf16", "fp16")
+SKIP_CUDA = "skipped: needs CUDA"
+
+
+@dataclass
+class Row:
+    check: str
+    device: str
+    precision: str
+    seconds: float
+    result: str
+    status: str  # ok | FAIL | skip
+
+
+class CheckFailed(AssertionError):
+    pass
+
+
+def _expect(cond: bool, msg: str) -> None:
+    if not cond:
+        raise CheckFailed(msg)
+
+
+def _sync(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+def run_check(rows: list[Row], check: str, device: torch.device, precision: str, fn) -> None:
+    """Time ``fn()`` (its return: the result text) into a row; an exception is a failed row."""
+    t0 = time.perf_counter()
+    try:
+        result, status = fn(), "ok"
+        _sync(device)
+    except Exception as err:  # noqa: BLE001 - every failure is a row, the check goes on
+        first = str(err).strip().splitlines()[0] if str(err).strip() else ""
+        result, status = f"FAIL {type(err).__name__}: {first}"[:160], "FAIL"
+        if os.environ.get("GPU_CHECK_TRACEBACK"):
+            traceback.print_exc()
+    rows.append(Row(check, device.type, precision, time.perf_counter() - t0, result, status))
+    print(f"  {check} [{precision}] {rows[-1].seconds:.1f} s: {result}", flush=True)
+
+
+def skip(rows: list[Row], check: str, device: torch.device, precision: str, why: str = SKIP_CUDA) -> None:
+    rows.append(Row(check, device.type, precision, 0.0, why, "skip"))
+    print(f"  {check} [{precision}]: {why}", flush=True)
+
+
+# ----------------------------------------------------------------------------- training steps
+def params_for(device: torch.device, precision: str, batch: int):
+    """params.yaml with the check's device, precision and batch (no file written)."""
+    params = load_params(ROOT / "params.yaml")
+    train = params.train.model_copy(update={"precision": precision, "device": device.type, "batch_size": batch,
+                                            "compile": False})
+    return params.model_copy(update={"train": train})
+
+
+def build_run(params, model_id: str, device: torch.device, cache: Path, out: Path, dist: ddp.Dist | None = None):
+    """A run as the training loop builds it (train._setup): model, weighting, optimiser, scaler."""
+    from compact_perception.core.cache import read_meta
+
+    recipe = params.train.models[model_id]
+    spec = RunSpec(params, "A", model_id, recipe, cache, RunPaths.under(out), device, dist or ddp.Dist(), 0,
+                   "gpu-check", params.train.batch_size, len(read_meta(cache)["seg_classes"]), torch.float32, None,
+                   False, False)
+    run = _setup(spec)
+    run.model.train()
+    return run
+
+
+def one_batch(cache: Path, model_id: str, batch: int) -> dict:
+    loader = make_loader(cache, "train", catalog.MODELS[model_id].lidar_channels, batch, shuffle=False)
+    return next(iter(loader))
+
+
+def steps_of(run, batch: dict, steps: int) -> str:
+    """``steps`` optimiser steps of the project's train_step (the last one is the epoch's last:
+    MGN updates its weights there); checks finite losses and moved parameters."""
+    before = [p.detach().clone() for p in run.model.parameters()]
+    w0 = run.weighting.w.detach().clone() if hasattr(run.weighting, "w") else None
+    values = {}
+    for step in range(steps):
+        values, _ = train_step(run, batch, step, steps)
+    _expect(math.isfinite(values["loss_total"]), f"loss_total {values['loss_total']}")
+    moved = sum(int(not torch.equal(a, p.detach())) for a, p in zip(before, run.model.parameters()))
+    _expect(moved > 0, "no parameter changed")
+    out = f"loss {values['loss_total']:.4g}, {moved} tensors updated"
+    if run.scaler.is_enabled():
+        out += f", GradScaler scale {run.scaler.get_scale():.0f}"
+    if run.spec.recipe.weighting == "mgn":
+        w = run.weighting.w.detach().float()
+        _expect(bool(torch.isfinite(w).all()), f"MGN weights not finite: {w.tolist()}")
+        _expect(not torch.equal(w, w0.float()), "MGN weights did not move on the epoch's last step")
+        out += ", MGN w " + "/".join(f"{x:.3f}" for x in w.tolist())
+    return out
+
+
+def check_train_steps(rows, device, cache, args) -> None:
+    for precision in PRECISIONS:
+        if precision == "fp16" and device.type != "cuda":
+            skip(rows, "train_step (every model)", device, precision)
+            continue
+        params = params_for(device, precision, args.batch)
+        emulated = precision == "bf16" and device.type == "cpu" and not cpu_has_native_bf16()
+        for model_id in catalog.model_ids():
+            name = f"train_step {model_id}"
+            if emulated and model_id != "compact_15l_mgn_authors":  # MGN under autocast: the one that matters
+                skip(rows, name, device, precision, "skipped: emulated bf16 on this CPU (slow); runs on CUDA")
+                continue
+            recipe = params.train.models[model_id]
+            if recipe.weighting == "mgn" and (recipe.mgn or {}).get("authors_mode"):
+                name += " (MGN authors update)"
+
+            def fn(model_id=model_id):
+                with tempfile.TemporaryDirectory() as tmp:
+                    run = build_run(params, model_id, device, cache, Path(tmp))
+                    _expect(run.precision == precision, f"resolved precision {run.precision}")
+                    return steps_of(run, one_batch(cache, model_id, args.batch), args.steps)
+
+            run_check(rows, name, device, precision, fn)
+
+
+# ----------------------------------------------------------------------------- pipeline.train
+INTERRUPTED_RUN = textwrap.dedent("""
+    import sys
+    from pathlib import Path
+    from compact_perception.core.config import load_params
+    from compact_perception.plan import recipe_of
+    from compact_perception.training.train import train_run
+    params = load_params(sys.argv[1])
+    try:
+        train_run(params, "A", "compact_15l", 0, Path(sys.argv[2]), Path(sys.argv[3]),
+                  recipe=recipe_of(params, "compact_15l", None), stop_after_epochs=1, progress=False)
+    except InterruptedError as err:
+        print("interrupted:", err)
+        sys.exit(0)
+    sys.exit("error: the run was not interrupted")
+""")
+
+
+def write_params(path: Path, device: torch.device, size: int, precision: str) -> Path:
+    raw = yaml.safe_load((ROOT / "params.yaml").read_text())
+    raw["scale"] = "default"
+    raw["world"]["resolution"] = {"default": size, "full": size, "paper": size}
+    raw["datasets"]["A"]["training"] = {"seeds": {"default": [0], "full": [0], "paper": [0]},
+                                        "max_epochs": {"default": 2, "full": 2, "paper": 2}}
+    raw["train"].update(device=device.type, precision=precision, parallel_runs=1, num_workers=0, compile=False)
+    path.write_text(yaml.safe_dump(raw, sort_keys=False))
+    return path
+
+
+def _run(cmd: list[str], timeout: float) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout)
+    if proc.returncode != 0:
+        tail = (proc.stderr or proc.stdout).strip().splitlines()
+        raise CheckFailed(f"{' '.join(cmd[:4])}... exit {proc.returncode}: {tail[-1] if tail else ''}")
+    return proc
+
+
+def check_pipeline_train(rows, device, cache, work: Path, args) -> None:
+    precision = "auto" if device.type == "cuda" else "fp32"
+
+    def fn() -> str:
+        params = write_params(work / "params.yaml", device, args.size, precision)
+        out = work / "run"
+        _run([sys.executable, "-c", INTERRUPTED_RUN, str(params), str(cache), str(out)], args.timeout)
+        _expect((out / "last.pt").exists() and (out / "best.pt").exists(), "no last.pt/best.pt after epoch 1")
+        _expect(not (out / "summary.json").exists(), "summary.json written by an interrupted run")
+        proc = _run([sys.executable, "-m", "pipeline.train", "--dataset", "A", "--model", "compact_15l", "--seed", "0",
+                     "--params", str(params), "--cache", str(cache), "--out", str(out)], args.timeout)
+        _expect("resuming after epoch 1" in proc.stderr + proc.stdout, "the stage did not resume after epoch 1")
+        summary = json.loads((out / "summary.json").read_text())
+        _expect(summary["epochs_run"] == 2, f"epochs_run {summary['epochs_run']}")
+        onnx = summary.get("onnx") or {}
+        _expect((out / onnx.get("file", "model.onnx")).exists(), "no ONNX export in the summary / folder")
+        diff = float(onnx["max_abs_diff"])
+        _expect(math.isfinite(diff) and diff < 1e-2, f"ONNX max abs diff {diff}")
+        return (f"resumed after epoch 1, 2 epochs, best epoch {summary['best_epoch'] + 1}, best.pt+last.pt, "
+                f"ONNX max|diff| {diff:.1e}")
+
+    run_check(rows, "pipeline.train (resume, ONNX)", device, precision, fn)
+
+
+# ----------------------------------------------------------------------------- torchrun DDP
+class _OneRankGroup(ddp.Dist):
+    """A one-process group that still takes the all-reduce path (Dist.enabled is world_size > 1)."""
+
+    @property
+    def enabled(self) -> bool:
+        return True
+
+
+def ddp_worker(args) -> None:
+    """Inside torchrun: join the group (nccl on CUDA, gloo on a CPU), one training step through
+    the data-parallel path, then an all-reduce of the scalars."""
+    import torch.distributed as dist
+
+    device = torch.device(args.device)
+    backend = "nccl" if device.type == "cuda" else "gloo"
+    rank, world, local = (int(os.environ[k]) for k in ("RANK", "WORLD_SIZE", "LOCAL_RANK"))
+    if device.type == "cuda":
+        torch.cuda.set_device(local)
+        device = torch.device("cuda", local)
+    dist.init_process_group(backend=backend)
+    group = _OneRankGroup(rank=rank, world_size=world, local_rank=local)
+    params = params_for(device, "fp32", args.batch)
+    with tempfile.TemporaryDirectory() as tmp:
+        run = build_run(params, "compact_15l_mgn_authors", device, Path(args.cache), Path(tmp), group)
+        text = steps_of(run, one_batch(Path(args.cache), "compact_15l_mgn_authors", args.batch), 1)
+    mean = ddp.average_scalars({"x": 2.0}, group)["x"]
+    ddp.barrier(group)
+    _expect(abs(mean - 2.0) < 1e-9, f"all-reduce mean {mean}")
+    print(f"ddp ok: backend {dist.get_backend()}, world {world}, {text}")
+    ddp.shutdown(group)
+
+
+def check_ddp(rows, device, cache, args) -> None:
+    backend = "nccl" if device.type == "cuda" else "gloo"
+
+    def fn() -> str:
+        proc = _run([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=1",
+                     str(Path(__file__).resolve()), "--ddp-worker", "--device", device.type, "--cache", str(cache),
+                     "--batch", str(args.batch)], args.timeout)
+        line = next((ln for ln in proc.stdout.splitlines() if ln.startswith("ddp ok")), None)
+        _expect(line is not None, "the torchrun worker printed no result")
+        return line.split(": ", 1)[1].split(", loss")[0]
+
+    run_check(rows, f"torchrun DDP step ({backend})", device, "fp32", fn)
+
+
+# ----------------------------------------------------------------------------- Table III FPS
+def check_fps(rows, device, args) -> None:
+    from compact_perception.models import DATASETS, build_model
+    from compact_perception.report.efficiency import dummy_batch
+    from compact_perception.timing import benchmark_variants, default_variants
+
+    params = load_params(ROOT / "params.yaml")
+    warmup, runs = (params.benchmark.warmup, params.benchmark.runs) if device.type == "cuda" else (1, 3)
+
+    def fn() -> str:
+        spec = DATASETS["A"]
+        torch.manual_seed(0)
+        model = build_model("compact_15l", "A").eval()
+        batch = dummy_batch(model, n_seg=spec.n_seg, has_dvs=spec.has_dvs, resolution=args.size, device=device)
+        results = benchmark_variants(model, batch, device, default_variants(device), warmup, runs)
+        bad = [r["name"] for r in results if "error" in r]
+        good = [r for r in results if "fps" in r]
+        _expect(any(r["name"] == "fp32" for r in good), "fp32 inference failed")
+        _expect(not bad, f"variants failed: {', '.join(bad)}")
+        best = max(good, key=lambda r: r["fps"])
+        fp32 = next(r for r in good if r["name"] == "fp32")
+        return (f"compact_15l batch 1: fp32 {fp32['fps']:.0f} FPS, best {best['name']} {best['fps']:.0f} FPS "
+                f"({len(good)} variants, synchronised, median of {runs})")
+
+    run_check(rows, "Table III FPS", device, "all", fn)
+
+
+# ----------------------------------------------------------------------------- main
+def print_table(rows: list[Row]) -> None:
+    w = max(len(r.check) for r in rows)
+    print(f"\n{'check':<{w}}  {'device':<6}  {'precision':<9}  {'seconds':>7}  result")
+    for r in rows:
+        print(f"{r.check:<{w}}  {r.device:<6}  {r.precision:<9}  {r.seconds:7.1f}  {r.result}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--device", default="cuda", choices=["cuda", "cpu"])
+    ap.add_argument("--size", type=int, default=128, help="frame size in px (the paper: 128)")
+    ap.add_argument("--steps", type=int, default=None, help="training steps per model (default: 3 on CUDA, 1 on CPU)")
+    ap.add_argument("--batch", type=int, default=6)
+    ap.add_argument("--timeout", type=float, default=300.0, help="seconds allowed to each subprocess")
+    ap.add_argument("--ddp-worker", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--cache", default=None, help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.size < 16 or args.size % 16:
+        sys.exit(f"error: --size must be a multiple of 16 and at least 16, got {args.size}")
+    if args.batch < 1:
+        sys.exit(f"error: --batch must be at least 1, got {args.batch}")
+    if args.device == "cuda" and not torch.cuda.is_available():
+        sys.exit("error: --device cuda but no CUDA device is available (use --device cpu for the CPU run)")
+    if args.ddp_worker:
+        ddp_worker(args)
+        return
+    args.steps = args.steps or (3 if args.device == "cuda" else 1)
+    device = torch.device(args.device)
+    where = torch.cuda.get_device_name(device) if device.type == "cuda" else f"CPU ({torch.get_num_threads()} threads)"
+    print(f"gpu-check on {where}, torch {torch.__version__}, {args.size} px, batch {args.batch}, "
+          f"{args.steps} step(s) per model", flush=True)
+    from tests.synthetic import make_cache
+
+    t0, rows = time.perf_counter(), []
+    with tempfile.TemporaryDirectory(prefix="gpu_check_") as tmp:
+        work = Path(tmp)
+        cache = make_cache(work / "cache", "A", size=args.size, counts=(max(args.batch, 6), 3, 1))
+        check_train_steps(rows, device, cache, args)
+        check_pipeline_train(rows, device, cache, work, args)
+        check_ddp(rows, device, cache, args)
+        check_fps(rows, device, args)
+    print_table(rows)
+    failed = [r for r in rows if r.status == "FAIL"]
+    print(f"\n{len(rows) - len(failed)} of {len(rows)} checks passed or skipped, {len(failed)} failed "
+          f"({time.perf_counter() - t0:.0f} s)")
+    sys.exit(1 if failed else 0)
+
+
+if __name__ == "__main__":
+    main()

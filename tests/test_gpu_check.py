@@ -1,0 +1,42 @@
+"""`make gpu-check` on a CPU (benchmarks/gpu_check.py --device cpu --size 32): every check runs
+(or prints `skipped: needs CUDA`), the table is printed and the exit status is 0."""
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SCRIPT = ROOT / "benchmarks" / "gpu_check.py"
+
+
+@pytest.mark.slow
+def test_gpu_check_runs_on_a_cpu():
+    proc = subprocess.run([sys.executable, str(SCRIPT), "--device", "cpu", "--size", "32"], cwd=ROOT,
+                          capture_output=True, text=True, timeout=900)
+    out = proc.stdout
+    assert proc.returncode == 0, out[-3000:] + proc.stderr[-3000:]
+    table = out[out.index("\ncheck "):]
+    assert "check" in table and "precision" in table and "seconds" in table and "result" in table
+    for model in ("compact_1l", "compact_15l", "compact_15l_mgn_authors (MGN authors update)", "gradnorm_segnet",
+                  "polarnet", "chen_bev"):
+        assert f"train_step {model}" in table
+    assert "MGN w " in table
+    assert "pipeline.train (resume, ONNX)" in table and "resumed after epoch 1" in table
+    assert "torchrun DDP step (gloo)" in table and "backend gloo" in table
+    assert "Table III FPS" in table and "FPS" in table
+    assert "skipped: needs CUDA" in table          # fp16 with the GradScaler
+    assert " 0 failed" in out
+
+
+def test_gpu_check_refuses_cuda_without_a_gpu_in_one_line():
+    import torch
+
+    if torch.cuda.is_available():
+        pytest.skip("a CUDA device is present")
+    proc = subprocess.run([sys.executable, str(SCRIPT), "--device", "cuda"], cwd=ROOT, capture_output=True,
+                          text=True, timeout=120)
+    assert proc.returncode != 0
+    assert proc.stderr.strip().startswith("error:") and len(proc.stderr.strip().splitlines()) == 1
