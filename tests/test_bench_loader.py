@@ -7,7 +7,11 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from synthetic import make_cache
+
+pytestmark = pytest.mark.slow   # a 128 px training step and its FLOP count: about a minute on 2 shared cores
 
 ROOT = Path(__file__).resolve().parents[1]
 NUM = r"[0-9]+(?:\.[0-9]+)?"

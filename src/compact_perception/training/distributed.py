@@ -66,7 +66,9 @@ def average_scalars(values: dict[str, float], d: Dist, weight: float = 1.0) -> d
     if not d.enabled:
         return dict(values)
     keys = sorted(values)
-    t = torch.tensor([values[k] * weight for k in keys] + [weight], dtype=torch.float64)
+    # nccl reduces only CUDA tensors: the scalars travel on this rank's device under that backend
+    device = torch.device("cuda", torch.cuda.current_device()) if dist.get_backend() == "nccl" else torch.device("cpu")
+    t = torch.tensor([values[k] * weight for k in keys] + [weight], dtype=torch.float64, device=device)
     dist.all_reduce(t, op=dist.ReduceOp.SUM)
     return {k: float(t[i] / t[-1]) for i, k in enumerate(keys)}
 
