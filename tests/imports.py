@@ -24,6 +24,22 @@ def module_file(root: Path, module: str) -> Path | None:
     return None
 
 
+def import_targets(node: ast.AST, package: str) -> list[str]:
+    """The modules one import statement names: ``a.b`` of ``import a.b``; ``base`` and each
+    ``base.name`` of ``from base import name`` (a name may be a submodule), a relative ``base``
+    resolved against ``package``; nothing for any other node."""
+    if isinstance(node, ast.Import):
+        return [alias.name for alias in node.names]
+    if not isinstance(node, ast.ImportFrom):
+        return []
+    if node.level:
+        parts = package.split(".")
+        base = ".".join(parts[: len(parts) - (node.level - 1)] + ([node.module] if node.module else []))
+    else:
+        base = node.module or ""
+    return [base] + [f"{base}.{alias.name}" for alias in node.names]
+
+
 def _module_name(root: Path, path: Path) -> str:
     rel = path.relative_to(root / "src" if path.is_relative_to(root / "src") else root).with_suffix("")
     parts = list(rel.parts)
@@ -37,17 +53,7 @@ def _imports(root: Path, path: Path) -> set[str]:
     package = name if path.name == "__init__.py" else name.rpartition(".")[0]
     found: set[str] = set()
     for node in ast.walk(ast.parse(path.read_text(), str(path))):
-        if isinstance(node, ast.Import):
-            found.update(alias.name for alias in node.names)
-        elif isinstance(node, ast.ImportFrom):
-            if node.level:
-                base_parts = package.split(".")
-                base_parts = base_parts[: len(base_parts) - (node.level - 1)]
-                base = ".".join(base_parts + ([node.module] if node.module else []))
-            else:
-                base = node.module or ""
-            found.add(base)
-            found.update(f"{base}.{alias.name}" for alias in node.names)  # submodules imported by name
+        found.update(import_targets(node, package))
     out: set[str] = set()
     for mod in found:
         parts = mod.split(".")

@@ -29,6 +29,8 @@ from pathlib import Path
 
 import pytest
 
+from imports import import_targets
+
 ROOT = Path(__file__).resolve().parents[1]
 PKG = ROOT / "src" / "compact_perception"
 TOP = "compact_perception"
@@ -66,18 +68,8 @@ def _modules() -> dict[str, Path]:
 def _imported(module: str, path: Path) -> list[tuple[int, str]]:
     """``(line, module)`` of every project module imported by ``module`` (lazy imports included)."""
     package = module if path.name == "__init__.py" else module.rpartition(".")[0]
-    found = []
-    for node in ast.walk(ast.parse(path.read_text(), str(path))):
-        if isinstance(node, ast.Import):
-            found += [(node.lineno, alias.name) for alias in node.names]
-        elif isinstance(node, ast.ImportFrom):
-            if node.level:
-                parts = package.split(".")
-                base = ".".join(parts[: len(parts) - (node.level - 1)] + ([node.module] if node.module else []))
-            else:
-                base = node.module or ""
-            found.append((node.lineno, base))
-            found += [(node.lineno, f"{base}.{alias.name}") for alias in node.names]
+    found = [(node.lineno, name) for node in ast.walk(ast.parse(path.read_text(), str(path)))
+             for name in import_targets(node, package)]
     return [(line, name) for line, name in found if name == TOP or name.startswith(TOP + ".")]
 
 

@@ -13,7 +13,7 @@ from compact_perception.core import catalog
 from compact_perception.core.config import DatasetsParams, load_params
 from compact_perception.weighting import WEIGHTINGS, weighting_class, weighting_settings
 
-from imports import module_file
+from imports import import_targets, module_file
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -102,19 +102,7 @@ def _top_level_imports(path: Path, module: str) -> set[str]:
     package = module if path.name == "__init__.py" else module.rpartition(".")[0]
     found: set[str] = set()
     for node in ast.parse(path.read_text()).body:
-        names: list[str] = []
-        if isinstance(node, ast.Import):
-            names = [a.name for a in node.names]
-        elif isinstance(node, ast.ImportFrom):
-            if node.level:
-                parts = package.split(".")
-                base = ".".join(parts[: len(parts) - (node.level - 1)] + ([node.module] if node.module else []))
-            else:
-                base = node.module or ""
-            names = [base] + [f"{base}.{a.name}" for a in node.names]
-        for name in names:
-            if module_file(ROOT, name) is not None:
-                found.add(name)
+        found.update(name for name in import_targets(node, package) if module_file(ROOT, name) is not None)
     ancestors = {".".join(module.split(".")[:i]) for i in range(1, len(module.split(".")))}
     return {m for m in found if m not in ancestors and m != module}
 
