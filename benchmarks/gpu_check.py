@@ -286,7 +286,7 @@ def check_ddp(rows, device, cache, args) -> None:
 # ----------------------------------------------------------------------------- Table III FPS
 def check_fps(rows, device, args) -> None:
     from compact_perception.models import DATASETS, build_model
-    from compact_perception.report.efficiency import dummy_batch
+    from compact_perception.efficiency import dummy_batch
     from compact_perception.timing import benchmark_variants, default_variants
 
     params = load_params(ROOT / "params.yaml")
