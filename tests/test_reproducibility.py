@@ -140,7 +140,8 @@ def test_digest_covers_every_result_changing_train_param(params_dict):
     d["train"]["num_workers"] = 2
     d["train"]["parallel_runs"] = 1
     assert run_digest(parse_params(d), "A", MODEL, 1, "data", 1) == d0
-    d["datasets"]["A"]["training"]["max_epochs"]["default"] = 11     # the run's cap is part of its result
+    cap = d["datasets"]["A"]["training"]["max_epochs"]
+    cap["default"] = cap["default"] + 1     # the run's cap is part of its result
     assert run_digest(parse_params(d), "A", MODEL, 1, "data", 1) != d0
     assert run_digest(base, "A", MODEL, 1, "other data", 1) != d0
     # the base recipe counts through the run's merged recipe: a base key the model inherits moves the
