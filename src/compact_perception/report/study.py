@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Mapping, Optional, Sequence
 
@@ -47,7 +47,7 @@ from .collect import (Cell, aggregate_cells, list_runs, run_frames,  # noqa: E40
 from .figures import mean_curve, read_weight_curves, save_figure  # noqa: E402
 from .gate import DatasetFloor, Gate, Margin, dataset_floor  # noqa: E402
 from .schema import DATASET_LABEL, METRIC_TASK  # noqa: E402
-from .tables.formats import csv_text, md_table  # noqa: E402
+from .tables.formats import csv_text, fmt_seeds, md_table  # noqa: E402
 
 log = logging.getLogger(__name__)
 
@@ -357,8 +357,9 @@ def _fmt(cell: Optional[Cell], key: str) -> str:
     if cell is None or not math.isfinite(cell.mean):
         return NOT_AVAILABLE
     d = DECIMALS.get(key, 3)
-    sd = NO_SD if cell.std is None else (f"{cell.std:.{d}f}" if math.isfinite(cell.std) else NOT_AVAILABLE)
-    return f"{round(cell.mean, d) + 0.0:.{d}f} ± {sd}"     # + 0.0: no "-0.0"
+    finite_sd = cell.std is not None and math.isfinite(cell.std)
+    shown = replace(cell, mean=round(cell.mean, d) + 0.0, std=cell.std if finite_sd else None)  # + 0.0: no "-0.0"
+    return fmt_seeds(shown, decimals=d, no_sd=NO_SD if cell.std is None else NOT_AVAILABLE)
 
 
 def _cell(r: StudyRow, key: str) -> str:
