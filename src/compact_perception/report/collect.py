@@ -12,7 +12,7 @@ Inputs (ARCHITECTURE.md / SPEC 2), per run (one training seed ``k`` of a (datase
   the trivial predictors of the floor (:data:`compact_perception.floor.TRIVIAL`, no seed;
   :func:`load_floor_results`, :func:`load_floor_frames`);
 - ``data/eval/<ds>/<model>/seed<k>/per_frame.csv``: one row per test frame (``frame_id`` and
-  the scores), read by :func:`load_frames` for the bootstrap statistics; ``inputs.npz`` and
+  the scores), read by :func:`load_frames` for the intervals (:mod:`compact_perception.stats`); ``inputs.npz`` and
   ``predictions.npz`` beside it (the qualitative figures);
 - ``runs/<ds>/<model>/seed<k>/summary.json`` (``epochs_run``, ``best_epoch``, ``stop_reason``:
   ``plateau`` when early stopping ended it, ``max_epochs`` when the cap did; ``final_weights``)

@@ -78,12 +78,13 @@ def _tex_label(label: str) -> str:
 
 
 COLUMN_TEX: dict[str, str] = {c: _tex_label(COLUMN_MD[c]) for c in TABLE2_COLUMNS}
-#: The statistic of a score's paired bootstrap (:mod:`compact_perception.stats`), from the task means.
+#: The statistic of a score, from the task means: what :func:`compact_perception.stats.interval`
+#: (seed-cluster-t by default) takes the interval of.
 _SCORE_STAT: dict[str, Callable[[np.ndarray], np.ndarray]] = {"tm": stat_tm, "mv": stat_mv}
 
 
 def column_stat(col: str) -> Callable[[np.ndarray], np.ndarray]:
-    """The bootstrap statistic of a Table II column: the mean of a task metric, TM (eq. 6) or MV
+    """The interval's statistic of a Table II column: the mean of a task metric, TM (eq. 6) or MV
     (eq. 7) of the four task means; it reads the columns :func:`stat_columns` gives."""
     return stat_mean if col in TASK_COLUMNS else _SCORE_STAT[col]
 
