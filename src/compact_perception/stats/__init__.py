@@ -73,7 +73,8 @@ one label per frame)::
 """
 from __future__ import annotations
 
-from .comparison import STATISTICS, Comparison, Contrast, Group, Statistic, make_comparison, stat_mean, stat_mv, stat_tm
+from .comparison import (STATISTICS, Comparison, Contrast, Group, Statistic, make_comparison, score_stat, stat_mean,
+                         stat_mv, stat_tm)
 from .coverage import (COMPOSITIONS, COVERAGE_SEED, COVERAGE_SIMS, LEVELS, SCENARIOS, CoverageResult, Design, Scenario,
                        coverage, coverage_line, simulate)
 from .distributions import normal_ppf, satterthwaite_df, t_cdf, t_ppf
@@ -89,5 +90,5 @@ __all__ = [
     "Group", "Comparison", "make_comparison", "IntervalResult", "interval", "seed_interval",
     "t_cdf", "t_ppf", "normal_ppf", "satterthwaite_df", "mde", "seeds_to_decide", "MAX_SEEDS_TO_DECIDE", "decidable",
     "comparison_verdict", "undecidable_reasons", "Scenario", "Design", "simulate", "CoverageResult", "coverage",
-    "coverage_line", "stat_mean", "stat_tm", "stat_mv", "verdict", "Statistic", "Contrast",
+    "coverage_line", "stat_mean", "score_stat", "stat_tm", "stat_mv", "verdict", "Statistic", "Contrast",
 ]
