@@ -116,10 +116,10 @@ def train_figures(args: argparse.Namespace, device: torch.device, size: int, con
 
 def onnx_figures(args: argparse.Namespace) -> dict[str, float]:
     from compact_perception.onnx_export import export_onnx, onnxruntime_latency
-    from compact_perception.models import DATASETS
+    from compact_perception.models import DATASET_SPECS
     from compact_perception.efficiency import dummy_batch, measure_fps
 
-    spec = DATASETS[args.dataset]
+    spec = DATASET_SPECS[args.dataset]
     torch.manual_seed(0)
     model = build_model("compact_15l", args.dataset).eval()
     batch = dummy_batch(model, n_seg=spec.n_seg, has_dvs=spec.has_dvs, resolution=args.onnx_resolution)

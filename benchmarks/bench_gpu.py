@@ -20,7 +20,7 @@ import time
 
 import torch
 
-from compact_perception.models import DATASETS, build_model
+from compact_perception.models import DATASET_SPECS, build_model
 from compact_perception.training.precision import cpu_has_native_bf16
 from compact_perception.efficiency import device_name, dummy_batch
 from compact_perception.timing import Variant, benchmark_variants, default_variants
@@ -43,7 +43,7 @@ def main() -> None:
     if args.device == "cuda" and not torch.cuda.is_available():
         raise SystemExit("error: --device cuda but no CUDA device is available")
     device = torch.device("cuda" if args.device != "cpu" and torch.cuda.is_available() else "cpu")
-    spec = DATASETS[args.dataset]
+    spec = DATASET_SPECS[args.dataset]
     torch.manual_seed(0)
     model = build_model(args.model, args.dataset).eval()
     batch = dummy_batch(model, n_seg=spec.n_seg, has_dvs=spec.has_dvs, resolution=args.resolution, device=device)

@@ -58,7 +58,7 @@ from compact_perception.core.config import load_params  # noqa: E402
 from compact_perception.core.determinism import set_threads  # noqa: E402
 from compact_perception.data import make_loader, to_device  # noqa: E402
 from compact_perception.losses import de_loss_factor, scale_de_loss  # noqa: E402
-from compact_perception.models import DATASETS, build_model, lidar_channels  # noqa: E402
+from compact_perception.models import DATASET_SPECS, build_model, lidar_channels  # noqa: E402
 from compact_perception.training.provenance import source_fingerprint  # noqa: E402
 from compact_perception.weighting import LossWeighting, build_weighting  # noqa: E402
 
@@ -207,7 +207,7 @@ def fingerprint_model(model_id: str, args: argparse.Namespace, params: Any) -> d
     de_factor = de_loss_factor(recipe.de_loss) if recipe.de_loss is not None else 1.0
     loader = make_loader(args.cache, "train", lidar_channels=lidar_channels(model_id),
                          batch_size=params.train.batch_size)
-    batch = to_device(next(iter(loader)), "cpu", DATASETS[args.dataset].n_seg)
+    batch = to_device(next(iter(loader)), "cpu", DATASET_SPECS[args.dataset].n_seg)
     model = _model(model_id, args.dataset, args.weights)
     phases, kernels = onednn_kernels(lambda: fingerprint(model, batch, de_factor))
     phases["kernels"] = kernels

@@ -285,7 +285,7 @@ def check_ddp(rows, device, cache, args) -> None:
 
 # ----------------------------------------------------------------------------- Table III FPS
 def check_fps(rows, device, args) -> None:
-    from compact_perception.models import DATASETS, build_model
+    from compact_perception.models import DATASET_SPECS, build_model
     from compact_perception.efficiency import dummy_batch
     from compact_perception.timing import benchmark_variants, default_variants
 
@@ -293,7 +293,7 @@ def check_fps(rows, device, args) -> None:
     warmup, runs = (params.benchmark.warmup, params.benchmark.runs) if device.type == "cuda" else (1, 3)
 
     def fn() -> str:
-        spec = DATASETS["A"]
+        spec = DATASET_SPECS["A"]
         torch.manual_seed(0)
         model = build_model("compact_15l", "A").eval()
         batch = dummy_batch(model, n_seg=spec.n_seg, has_dvs=spec.has_dvs, resolution=args.size, device=device)

@@ -23,7 +23,7 @@ import torch
 from compact_perception.core import io
 from compact_perception.core.catalog import dataset_ids, model_ids, sim_dataset_ids
 from compact_perception.core.errors import os_error_line
-from compact_perception.models import DATASETS, build_model
+from compact_perception.models import DATASET_SPECS, build_model
 from compact_perception.efficiency import (CPU_MEMORY_METHOD, CUDA_MEMORY_METHOD, device_name,
                                                    dummy_batch, measure_fps, measure_model, measure_onnx)
 
@@ -57,7 +57,7 @@ def main(argv: list[str] | None = None) -> None:
     }
     try:  # the ONNX export's temporary file, the output: a full disk or read-only folder is one line
         for ds in args.datasets:
-            spec = DATASETS[ds]
+            spec = DATASET_SPECS[ds]
             out["models"][ds] = {}
             for m in args.models:
                 model = build_model(m, ds)

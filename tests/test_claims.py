@@ -12,13 +12,14 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from compact_perception.report.claims import (BEVP_MARGIN, CLAIMS, MGN_CLAIMS, MV_MARGIN, NO_DATA, SIMULATED_ONLY,
-                                              build_claims, claims_for_dataset, exact_counts, mgn_weight_margins,
-                                              verdict_counts, write_claims)
+from compact_perception.report.claims import (BEVP_MARGIN, CLAIM_MODELS, CLAIMS, MGN_CLAIMS, MV_MARGIN, NO_DATA,
+                                              SIMULATED_ONLY, build_claims, claims_files, claims_for_dataset,
+                                              coverage_text, exact_counts, mgn_weight_runs, verdict_counts)
 from compact_perception.report.collect import (ReportInputError, combination_frames, common_frames, list_runs,
                                                load_row_frames, read_per_frame)
 from compact_perception.report.paper import load_paper_numbers
 from compact_perception.report.schema import MGN_FORMS
+from compact_perception.report.tables.formats import write_files
 from compact_perception.stats import METHOD, MIN_SEEDS, VERDICTS
 from report_fixture import (COMPACT, MGN, MODELS, SEEDS, bases_with, build_tree, per_frame, run_dirs, seed_map,
                             write_json, write_run)
@@ -37,6 +38,14 @@ def _tree(root: Path, datasets: tuple[str, ...] = ("A",), **kw) -> dict:
 
 def _claims(root: Path, datasets: list[str], seeds=SEEDMAP):
     return build_claims(root, datasets, load_paper_numbers(), seeds=seeds)
+
+
+def _write_claims(root: Path, datasets: list[str], out_dir: Path, seeds) -> list[Path]:
+    """``claims.md`` and ``claims.csv`` as the report writes them (index.write_tables: build_claims,
+    coverage_text, claims_files)."""
+    frames = {ds: load_row_frames(root, ds, CLAIM_MODELS, seeds) for ds in datasets}
+    rows = build_claims(root, datasets, load_paper_numbers(), frames=frames, seeds=seeds)
+    return write_files(out_dir, claims_files(rows, coverage_text(frames)))
 
 
 def _by(rows, claim: str, ds: str = "A", model: str = ""):
@@ -173,7 +182,7 @@ def test_seed_list_selects_the_runs_and_stale_seed_folders_are_ignored(tmp_path:
     assert [r.seed for r in list_runs(tmp_path, "A", "compact_15l_mgn")] == [0, 1, 2, 7]   # no list: every folder
     assert [r.seed for r in list_runs(tmp_path, "A", "compact_15l_mgn", [0, 2, 5])] == [0, 2]  # seed 5 never ran
     assert list_runs(tmp_path, "A", "no_such_model", SEEDS) == []
-    assert mgn_weight_margins(tmp_path, "A", "compact_15l_mgn", SEEDS) == pytest.approx([0.3, 0.3, 0.3])
+    assert [m for m, _ in mgn_weight_runs(tmp_path, "A", "compact_15l_mgn", SEEDS)] == pytest.approx([0.3, 0.3, 0.3])
     rows = _claims(tmp_path, ["A"])
     mw, mt = _by(rows, "mgn-weights", model="compact_15l_mgn"), _by(rows, "mgn-tm", model="compact_15l_mgn")
     assert mw.verdict == "reproduced" and mw.n_seeds == 3
@@ -310,10 +319,9 @@ def test_combination_frames_join_sources_per_seed_and_frame(tmp_path: Path) -> N
 
 def test_outputs_deterministic_and_rule_stated(tmp_path: Path) -> None:
     _tree(tmp_path, baseline_seeds=(0,))
-    p = load_paper_numbers()
     seeds = seed_map(SEEDS, (0,))
-    first = [x.read_bytes() for x in write_claims(tmp_path, ["A"], p, tmp_path / "o1", seeds=seeds)]
-    second = [x.read_bytes() for x in write_claims(tmp_path, ["A"], p, tmp_path / "o2", seeds=seeds)]
+    first = [x.read_bytes() for x in _write_claims(tmp_path, ["A"], tmp_path / "o1", seeds)]
+    second = [x.read_bytes() for x in _write_claims(tmp_path, ["A"], tmp_path / "o2", seeds)]
     assert first == second
     md = (tmp_path / "o1/claims.md").read_text()
     assert "Verdict rule" in md and "equivalence margin" in md and "fewer than 3 training seeds" in md

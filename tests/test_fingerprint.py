@@ -7,7 +7,7 @@ import importlib.util
 import torch
 
 from compact_perception.data import make_loader, to_device
-from compact_perception.models import DATASETS, build_model
+from compact_perception.models import DATASET_SPECS, build_model
 
 from synthetic import make_cache
 
@@ -23,7 +23,7 @@ def _script(root, monkeypatch):
 def test_fingerprint_is_stable_and_locates_a_change(root, tmp_path, monkeypatch):
     fp = _script(root, monkeypatch)
     cache = make_cache(tmp_path / "cache", "A", size=32, counts=(2, 1, 1))
-    batch = to_device(next(iter(make_loader(cache, "train", batch_size=2))), "cpu", DATASETS["A"].n_seg)
+    batch = to_device(next(iter(make_loader(cache, "train", batch_size=2))), "cpu", DATASET_SPECS["A"].n_seg)
 
     def run(perturb: bool) -> dict:
         torch.manual_seed(0)
@@ -67,7 +67,7 @@ def test_mgn_phase_records_the_authors_update_and_locates_a_change(root, tmp_pat
     fp = _script(root, monkeypatch)
     params = load_params(root / "params.yaml")
     cache = make_cache(tmp_path / "cache", "A", size=16, counts=(2, 1, 1))
-    batch = to_device(next(iter(make_loader(cache, "train", batch_size=2))), "cpu", DATASETS["A"].n_seg)
+    batch = to_device(next(iter(make_loader(cache, "train", batch_size=2))), "cpu", DATASET_SPECS["A"].n_seg)
 
     a = _mgn_run(fp, params, "compact_15l_mgn_authors", batch)
     assert a == _mgn_run(fp, params, "compact_15l_mgn_authors", batch)

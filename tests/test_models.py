@@ -11,7 +11,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from compact_perception.core.catalog import dataset_ids, model_ids
-from compact_perception.models import DATASETS, MODELS, build_model, count_parameters
+from compact_perception.models import DATASET_SPECS, MODELS, build_model, count_parameters
 from compact_perception.models.polarnet import PolarNet, RingConv2d
 
 torch.set_num_threads(1)
@@ -26,7 +26,7 @@ _BY_SPEC: dict[tuple[str, object], nn.Module] = {}
 
 def _model(model_id: str, dataset_id: str) -> nn.Module:
     """One cached build per (model, dataset spec): A, B and C share a spec."""
-    key = (model_id, DATASETS[dataset_id])
+    key = (model_id, DATASET_SPECS[dataset_id])
     if key not in _BY_SPEC:
         torch.manual_seed(0)
         _BY_SPEC[key] = build_model(model_id, dataset_id)
@@ -35,7 +35,7 @@ def _model(model_id: str, dataset_id: str) -> nn.Module:
 
 def make_batch(dataset_id: str, lidar_channels: int, s: int = S, b: int = 1, seed: int = 0) -> dict:
     """A random batch following ARCHITECTURE.md (one-hot targets, some unlabelled LS cells)."""
-    spec = DATASETS[dataset_id]
+    spec = DATASET_SPECS[dataset_id]
     g = torch.Generator().manual_seed(seed)
     c, cb, v = spec.n_seg, spec.n_bev, spec.n_views
 
@@ -237,7 +237,7 @@ def test_tiny_overfit(model_id: str) -> None:
         # one view keeps the step cheap; the 4 per-view networks are identical in structure
         from compact_perception.models.segnet import GradNormSegNet
 
-        model = GradNormSegNet(DATASETS["A"].n_seg, n_views=1)
+        model = GradNormSegNet(DATASET_SPECS["A"].n_seg, n_views=1)
     else:
         model = build_model(model_id, "A")
     model.train()

@@ -96,6 +96,27 @@ def test_task_registry_directions():
         assert set(info.tasks) <= set(catalog.task_ids()) and info.group in ("compact", "baseline")
 
 
+def test_a_score_is_computed_through_its_catalog_entry():
+    """A Table II score is its SCORES entry: evaluation (scores_from_means, per-frame scores), the
+    statistics and the report's interval statistic all call the entry's formula (of_terms)."""
+    import numpy as np
+
+    from compact_perception.evaluate import frame_scores
+    from compact_perception.metrics import scores_from_means
+    from compact_perception.report.schema import column_stat
+    from compact_perception.stats import STATISTICS
+
+    means = {"mae_de": 0.1, "iou_ss": 0.8, "iou_ls": 0.6, "iou_bevp": 0.9}
+    terms = np.array(list(means.values()))
+    by_entry = {k: float(catalog.SCORES[k].of_terms(*terms)) for k in catalog.SCORES.keys()}
+    assert by_entry["tm"] == pytest.approx(0.8) and by_entry["mv"] == pytest.approx(0.015)
+    assert scores_from_means(means) == by_entry
+    assert frame_scores(means) == {**means, **{k: by_entry[k] for k in catalog.per_frame_scores()}}
+    assert catalog.per_frame_scores() == ("tm",)
+    for k in catalog.SCORES.keys():
+        assert column_stat(k) is STATISTICS[k] and float(column_stat(k)(terms)) == by_entry[k]
+
+
 def _top_level_imports(path: Path, module: str) -> set[str]:
     """Project modules imported at module level (what runs on import), without the module's own
     parent packages (importing a submodule while its package is being imported is no cycle)."""

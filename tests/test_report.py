@@ -28,7 +28,7 @@ from compact_perception.report.index import HEADLINE_KEY, HEADLINE_MODEL, build_
 from compact_perception.report.plots import write_plot_data
 from compact_perception.report.paper import load_paper_numbers
 from compact_perception.report.schema import ROW_ORDER, TASK_COLUMNS, paper_row
-from compact_perception.report.tables.formats import write_files
+from compact_perception.report.tables.formats import fmt_seeds, write_files
 from compact_perception.report.tables.table2 import build_table2, column_interval, table2_files, table2_markdown
 from compact_perception.report.tables.table3 import build_table3
 from report_fixture import (ARGMAX_GAIN, COMPACT, FLOORS, MGN, MODELS, SEEDS, TASKS, bases_with, build_tree, n_epochs,
@@ -200,6 +200,14 @@ def test_one_seed_prints_n1(tmp_path: Path) -> None:
     rows = {r.row_id: r for r in tables["A"]}
     assert rows["compact_1l"].cells["mae_de"].std is None and rows["compact_1l"].n_seeds == 1
     assert f"{0.11:.3f} (n=1)" in md and " ± " not in md.split("\n\n")[0].split("\n", 2)[2]
+
+
+def test_one_mean_sd_format() -> None:
+    """fmt_seeds is every table's ``mean ± sd`` (Table II, the study's ``weighting.md`` with ``no_sd``)."""
+    assert fmt_seeds(Cell(0.1234, std=0.0106, n_seeds=3)) == "0.123 ± 0.011"
+    assert fmt_seeds(Cell(0.1234, std=0.0106, n_seeds=3), latex=True) == "0.123 $\\pm$ 0.011"
+    assert fmt_seeds(Cell(0.1234, n_seeds=1)) == "0.123 (n=1)" and fmt_seeds(None) == "-"
+    assert fmt_seeds(Cell(12.34, n_seeds=1), decimals=1, no_sd="—") == "12.3 ± —"
 
 
 def test_table2_numbers_bold_and_combination(tmp_path: Path) -> None:

@@ -39,7 +39,7 @@ from compact_perception.stats import (
     stat_tm,
     t_cdf,
     t_ppf,
-    undecidable_note,
+    undecidable_reasons,
     verdict,
 )
 
@@ -284,11 +284,12 @@ def test_fewer_than_three_seeds_is_not_decidable() -> None:
     assert r.n_seeds == (3, 1) and not r.paired and not r.decidable
     assert math.isnan(r.ci_low) and math.isnan(r.se) and math.isnan(r.mde)
     assert comparison_verdict(r) == NOT_DECIDABLE == "not decidable"
-    assert undecidable_note(r) == "not decidable (3 vs 1 seeds)"
+    assert undecidable_reasons(r, ["A", "B"]) == ["1 seed: B"]
     two = interval(make_comparison([three, {0: one[0], 1: one[0] + 0.1}], clusters), stat_mean, _b_minus_a)
     assert math.isfinite(two.ci_low) and comparison_verdict(two) == NOT_DECIDABLE   # an interval, yet no verdict
+    assert undecidable_reasons(two, ["A", "B"]) == ["2 seeds: B"]
     ok = interval(make_comparison([three, {s: v + 1.0 for s, v in three.items()}], clusters), stat_mean, _b_minus_a)
-    assert ok.decidable and comparison_verdict(ok) == REPRODUCED and undecidable_note(ok) == ""
+    assert ok.decidable and comparison_verdict(ok) == REPRODUCED and undecidable_reasons(ok, ["A", "B"]) == []
 
 
 def test_decidable_needs_three_seeds_per_trained_model() -> None:
@@ -307,7 +308,7 @@ def test_a_deterministic_floor_is_one_fixed_run() -> None:
     r = interval(make_comparison([model, floor], clusters), stat_mean, lambda v: v[..., 0] - v[..., 1])
     assert r.fixed == (False, True) and r.decidable and not r.paired and r.ci_low > 0
     assert r.estimate == pytest.approx(0.11, abs=0.01)
-    assert undecidable_note(r) == "" and comparison_verdict(r) == REPRODUCED
+    assert undecidable_reasons(r, ["model", "floor"]) == [] and comparison_verdict(r) == REPRODUCED
     with pytest.raises(ValueError, match="fixed"):
         make_comparison([model, Group({0: model[0], 1: model[1]}, fixed=True)], clusters)
 

@@ -7,13 +7,14 @@ import csv
 import logging
 import math
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from compact_perception.core import catalog
 from compact_perception.report.index import build_reports
-from compact_perception.report.study import StudySpec, delta_m, study_methods, write_study_report
+from compact_perception.report.study import StudySpec, delta_m, paper_forms, study_methods, write_study_report
 from repo_params import repo_params
 from report_fixture import build_tree, write_study_run
 
@@ -21,7 +22,10 @@ PAPER = ("compact_15l", "compact_15l_mgn", "compact_15l_mgn_authors")
 ARMS = ("gradnorm", "uw", "dwa", "pcgrad", "cagrad", "single_de", "single_ss", "single_ls", "single_bevp")
 WEIGHTING = {"gradnorm": "gradnorm", "uw": "uw", "dwa": "dwa", "pcgrad": "pcgrad", "cagrad": "cagrad",
              **{f"single_{t}": "single" for t in ("de", "ss", "ls", "bevp")}}
-SPEC = StudySpec(("A",), {"A": (0, 1, 2)}, ARMS, WEIGHTING, {f"single_{t}": t for t in ("de", "ss", "ls", "bevp")})
+#: The paper forms' weightings (params.yaml train.models.<id>.weighting; StudySpec.from_params reads them).
+PAPER_FORMS = {"compact_15l": "static", "compact_15l_mgn": "mgn", "compact_15l_mgn_authors": "mgn"}
+SPEC = StudySpec(("A",), {"A": (0, 1, 2)}, ARMS, WEIGHTING, {f"single_{t}": t for t in ("de", "ss", "ls", "bevp")},
+                 PAPER_FORMS)
 OTHER = 0.1    # the single-task arms' metrics of the tasks they did not train
 W = {"w_de": [1.0, 1.2, 1.4], "w_ss": [1.0, 0.9, 0.8], "w_ls": [1.0, 1.0, 1.1], "w_bevp": [1.0, 0.9, 0.7]}
 
@@ -89,12 +93,23 @@ def test_spec_from_repo_params_and_method_order() -> None:
     assert spec.arm_ids == tuple(p.study.arm_ids) and spec.datasets == tuple(p.study.datasets.at(p.scale))
     assert spec.seeds == {ds: tuple(p.seeds_of("compact", ds)) for ds in spec.datasets}
     assert set(spec.single_task.values()) <= {"de", "ss", "ls", "bevp"}
+    assert spec.paper == PAPER_FORMS and list(spec.paper) == list(PAPER)    # from each model's recipe
     methods = study_methods(spec)
     assert [m.id for m in methods] == list(PAPER) + list(p.study.arm_ids)
     labels = {m.id: m.label for m in methods}
     assert labels["compact_15l_mgn"] == "15L+MGN (Alg. 1)" and labels.get("single_de") == "Single-task (DE)"
     assert [m.id for m in methods if m.adaptive][:2] == ["compact_15l_mgn", "compact_15l_mgn_authors"]
     assert not any(m.adaptive for m in methods if m.weighting in ("static", "single"))
+
+
+def test_paper_forms_follow_the_model_recipes() -> None:
+    """The paper forms' weightings are read from train.models.<id>, not kept in the report."""
+    p = repo_params()
+    models = {**p.train.models, "compact_15l_mgn": SimpleNamespace(weighting="uw")}
+    fake = SimpleNamespace(study=SimpleNamespace(base_model="compact_15l"), train=SimpleNamespace(models=models))
+    assert paper_forms(fake) == {**PAPER_FORMS, "compact_15l_mgn": "uw"}
+    fake.study.base_model = "compact_1l"                          # the 1-layer input: only compact_1l
+    assert paper_forms(fake) == {"compact_1l": "static"}
 
 
 # ----------------------------------------------------------------------------- table and figure

@@ -34,7 +34,6 @@ from .data import make_loader, to_device
 from .core.determinism import resolve_device, set_threads
 from .metrics import (DEPTH_CONVENTION, DEPTH_METRICS, DEPTH_NEAR_M, MV_DEFINITION, class_confusion, class_iou, compute_metrics,
                       depth_errors_per_sample, mean_iou, multilabel_confusion, score_terms, scores_from_means,
-                      total_metric,
                       ARGMAX_TASKS, iou_argmax_per_sample)
 from .floor import TRIVIAL, fit_trivial, floor_of, margins
 from .models import build_model
@@ -79,12 +78,13 @@ def depth_definition(max_m: float) -> str:
 
 
 def frame_scores(metrics: dict[str, float]) -> dict[str, float]:
-    """Per-frame scores: the task scores, and TM (eq. 6) when all four tasks are present.
+    """Per-frame scores: the task scores, and the per-frame scores of ``catalog.SCORES`` (TM, eq. 6)
+    when all four tasks are present.
     No per-frame MV: eq. (7) is computed once, from the test-set means (:func:`summarise`)."""
     out = {k: float(v) for k, v in metrics.items() if k in TASK_METRIC.values()}
     terms = score_terms(out)
     if terms is not None:
-        out["tm"] = float(total_metric(*terms))
+        out.update({k: float(catalog.SCORES[k].of_terms(*terms)) for k in catalog.per_frame_scores()})
     return out
 
 

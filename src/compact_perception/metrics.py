@@ -12,8 +12,9 @@
   0.530, 0.406 -> 0.0267, printed 0.027). TM is linear, so TM of the means equals the mean of
   the per-frame TM.
 
-This module is the project's only implementation of TM and MV; evaluation, the reports and the
-claims' statistics all call :func:`total_metric` / :func:`metric_variance`.
+TM and MV are implemented once, in :mod:`compact_perception.core.scores` (re-exported here), and
+reached through their catalog entries (``catalog.SCORES[k].of_terms``): evaluation, the reports
+and the claims' statistics all compute a score that way.
 
 Metrics the field expects, beside the paper's (not in the paper):
 
@@ -44,6 +45,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from .core import catalog
+from .core.scores import metric_variance, total_metric
 from .core.depth import DEPTH_FAR_M, DEPTH_LOG_K
 from .losses import as_views
 from .core.registry import Registry
@@ -123,18 +125,6 @@ def iou(pred: Tensor, target: Tensor, threshold: float = 0.5) -> Tensor:
     return _iou_from_counts(inter, union).mean()
 
 
-def total_metric(mae_de: Number, iou_ss: Number, iou_ls: Number, iou_bevp: Number) -> Number:
-    """Eq. (6): ``TM = MAE_DE + (1-IoU_SS) + (1-IoU_LS) + (1-IoU_BEVP)`` (element-wise)."""
-    return mae_de + (1 - iou_ss) + (1 - iou_ls) + (1 - iou_bevp)
-
-
-def metric_variance(mae_de: Number, iou_ss: Number, iou_ls: Number, iou_bevp: Number) -> Number:
-    """Eq. (7): population variance (1/T, T = 4) of ``M = (MAE, 1-IoU_SS, 1-IoU_LS, 1-IoU_BEVP)``."""
-    terms = (mae_de, 1 - iou_ss, 1 - iou_ls, 1 - iou_bevp)
-    mean = total_metric(mae_de, iou_ss, iou_ls, iou_bevp) / 4
-    return sum((m - mean) ** 2 for m in terms) / 4
-
-
 #: How the project's metrics.json labels MV (paper eq. 7 applied to the test-set means).
 MV_DEFINITION = "population variance of the four test-set mean terms (paper eq. 7)"
 #: The per-frame scores that enter TM / MV (eq. 6, 7), in this order.
@@ -156,7 +146,7 @@ def scores_from_means(means: Mapping[str, float]) -> dict[str, float]:
     if terms is None:
         return {}
     vals = [float(v) for v in terms]
-    return {"tm": float(total_metric(*vals)), "mv": float(metric_variance(*vals))}
+    return {k: float(catalog.SCORES[k].of_terms(*vals)) for k in catalog.SCORES.keys()}
 
 
 def total_metric_partial(scores: Mapping[str, float]) -> float:
@@ -202,8 +192,7 @@ def compute_metrics(outputs: Mapping[str, Tensor], targets: Mapping[str, Tensor]
             out[f"iou_{t}"] = float(iou(outputs[t], targets[t]))
     terms = score_terms(out)
     if terms is not None:
-        out["tm"] = float(total_metric(*terms))
-        out["mv"] = float(metric_variance(*terms))
+        out.update({k: float(catalog.SCORES[k].of_terms(*terms)) for k in catalog.SCORES.keys()})
     return out
 
 
@@ -228,7 +217,8 @@ def compute_metrics_per_sample(outputs: Mapping[str, Tensor], targets: Mapping[s
                                argmax_tasks: Collection[str]) -> dict[str, Tensor]:
     """As :func:`compute_metrics` but every value is a (B,) float64 tensor (one per frame).
 
-    Per-frame ``tm`` only: MV is not a per-frame quantity (eq. 7 takes the test-set means)."""
+    Per-frame scores only (``catalog.SCORES[k].per_frame``: TM; MV is not a per-frame quantity,
+    eq. 7 takes the test-set means)."""
     outputs = scored_outputs(outputs, argmax_tasks)
     out: dict[str, Tensor] = {}
     if "de" in outputs and "de" in targets:
@@ -238,7 +228,7 @@ def compute_metrics_per_sample(outputs: Mapping[str, Tensor], targets: Mapping[s
             out[f"iou_{t}"] = iou_per_sample(outputs[t], targets[t])
     terms = score_terms(out)
     if terms is not None:
-        out["tm"] = total_metric(*terms)
+        out.update({k: catalog.SCORES[k].of_terms(*terms) for k in catalog.per_frame_scores()})
     return out
 
 

@@ -10,7 +10,8 @@ This module imports nothing heavy (no torch), so the config and every stage can 
 - a **task** (paper section III-B): its test metric (``metric``, a per-frame score key), the
   labels of task and metric, and whether lower or higher is better;
 - a **score** over the four task metrics (paper eq. 6-7: TM, MV): Table II's columns are the task
-  metrics, then the scores (:func:`table2_columns`);
+  metrics, then the scores (:func:`table2_columns`); each entry carries its formula
+  (``of_terms``, :mod:`.scores`), which evaluation, the report and the statistics call;
 - a **dataset**: its report label and whether the embedded world simulates it;
 - a **model**: its report label, its group (``compact``: the paper's network, trained per
   ``seeds``; ``baseline``: section V-D, per ``baseline_seeds``), the LiDAR channels it reads, its
@@ -29,16 +30,17 @@ its group here decides whether ``datasets.<ds>.training.seeds`` or ``baseline_se
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Callable, Literal
 
 from .registry import Registry
+from .scores import metric_variance, total_metric
 
 __all__ = [
     "TaskInfo", "DatasetInfo", "ModelInfo", "TASKS", "DATASETS", "MODELS",
     "task_ids", "dataset_ids", "sim_dataset_ids", "model_ids", "compact_model_ids",
     "metric_of", "metric_keys", "higher_is_better", "model_label", "table_model_ids", "combination_source",
     "SOURCE_LABEL", "source_label", "STOP_PLATEAU", "STOP_CAP",
-    "ScoreInfo", "SCORES", "table2_columns", "per_frame_columns", "column_label", "lower_is_better",
+    "ScoreInfo", "SCORES", "table2_columns", "per_frame_scores", "per_frame_columns", "column_label", "lower_is_better",
     "WeightingInfo", "WEIGHTING_METHODS", "weighting_info",
 ]
 
@@ -61,6 +63,8 @@ class ScoreInfo:
     direction: Literal["lower", "higher"]    # which way the score is better
     equation: str                            # the paper's equation number: "6"
     per_frame: bool                          # also a per-frame score (TM is, MV is one number per run)
+    of_terms: Callable[..., Any]             # the score of the four task metrics (mae_de, iou_ss, iou_ls,
+                                             # iou_bevp; numbers or arrays, element-wise): .scores
 
 
 @dataclass(frozen=True)
@@ -90,8 +94,8 @@ TASKS.register("ls")(TaskInfo("LS", "iou_ls", "IoU_LS", "higher"))
 TASKS.register("bevp")(TaskInfo("BEVP", "iou_bevp", "IoU_BEVP", "higher"))
 
 SCORES: Registry[ScoreInfo] = Registry("score", ordered=True)
-SCORES.register("tm")(ScoreInfo("TM", "lower", "6", per_frame=True))
-SCORES.register("mv")(ScoreInfo("MV", "lower", "7", per_frame=False))
+SCORES.register("tm")(ScoreInfo("TM", "lower", "6", per_frame=True, of_terms=total_metric))
+SCORES.register("mv")(ScoreInfo("MV", "lower", "7", per_frame=False, of_terms=metric_variance))
 
 DATASETS: Registry[DatasetInfo] = Registry("dataset", ordered=True)
 DATASETS.register("A")(DatasetInfo("Set A", True))
@@ -186,9 +190,14 @@ def table2_columns() -> tuple[str, ...]:
     return metric_keys() + tuple(SCORES.keys())
 
 
+def per_frame_scores() -> tuple[str, ...]:
+    """The scores that are also per-frame scores (TM), in registry order."""
+    return tuple(k for k in SCORES.keys() if SCORES[k].per_frame)
+
+
 def per_frame_columns() -> tuple[str, ...]:
     """The columns a run scores per test frame: the task metrics and the per-frame scores (TM)."""
-    return metric_keys() + tuple(k for k in SCORES.keys() if SCORES[k].per_frame)
+    return metric_keys() + per_frame_scores()
 
 
 def column_label(column: str) -> str:

@@ -19,7 +19,7 @@ from torch import nn
 
 from ..core import catalog
 from ..core.registry import import_submodules
-from .base import DATASETS, NETWORKS, DatasetSpec, register_network
+from .base import DATASET_SPECS, NETWORKS, DatasetSpec, register_network
 from .blocks import count_parameters
 
 import_submodules(__name__, __path__)  # each network module registers itself
@@ -42,10 +42,10 @@ def build_model(model_id: str, dataset_id: str, tasks: Sequence[str] | None = No
     info = MODELS[model_id]
     factory = NETWORKS[info.network]
     if tasks is None or tuple(tasks) == tuple(info.tasks):
-        return factory(DATASETS[dataset_id], info)
+        return factory(DATASET_SPECS[dataset_id], info)
     if "tasks" not in inspect.signature(factory).parameters:
         raise ValueError(f"model {model_id} is built for all of its tasks {list(info.tasks)}, not {list(tasks)}")
-    return factory(DATASETS[dataset_id], info, tasks=tuple(tasks))
+    return factory(DATASET_SPECS[dataset_id], info, tasks=tuple(tasks))
 
 
 def lidar_channels(model_id: str) -> int:
@@ -54,6 +54,6 @@ def lidar_channels(model_id: str) -> int:
 
 
 __all__ = [
-    "DATASETS", "MODELS", "NETWORKS", "DatasetSpec", "build_model", "count_parameters", "lidar_channels",
+    "DATASET_SPECS", "MODELS", "NETWORKS", "DatasetSpec", "build_model", "count_parameters", "lidar_channels",
     "register_network", "ChenBEV", "CompactPerception", "GradNormSegNet", "PolarNet",
 ]

@@ -20,7 +20,7 @@ from ..core import catalog
 from ..core.classes import BEV_NAMES, CARLA_NAMES, NUSCENES_NAMES
 from ..core.registry import Registry
 
-__all__ = ["DatasetSpec", "DATASETS", "NETWORKS", "NetworkFactory", "PerceptionNet", "contract_gaps",
+__all__ = ["DatasetSpec", "DATASET_SPECS", "NETWORKS", "NetworkFactory", "PerceptionNet", "contract_gaps",
            "register_network"]
 
 
@@ -34,13 +34,14 @@ class DatasetSpec:
     n_views: int = 4
 
 
-#: dataset id -> what a model needs to know about it (the ids are catalog.DATASETS')
-DATASETS: Registry[DatasetSpec] = Registry("dataset", ordered=True)
+#: dataset id -> what a model needs to know about it: its class counts and inputs (the ids are
+#: catalog.DATASETS', which holds the datasets' labels and kinds)
+DATASET_SPECS: Registry[DatasetSpec] = Registry("dataset", ordered=True)
 for _ds in catalog.dataset_ids():
     if catalog.DATASETS[_ds].simulated:  # the CARLA-like classes of the embedded world / the authors' sets
-        DATASETS.register(_ds)(DatasetSpec(len(CARLA_NAMES), len(BEV_NAMES), True))
+        DATASET_SPECS.register(_ds)(DatasetSpec(len(CARLA_NAMES), len(BEV_NAMES), True))
     else:  # nuScenes-lidarseg: 32 classes for SS, LS and BEVP, no DVS
-        DATASETS.register(_ds)(DatasetSpec(len(NUSCENES_NAMES), len(NUSCENES_NAMES), False))
+        DATASET_SPECS.register(_ds)(DatasetSpec(len(NUSCENES_NAMES), len(NUSCENES_NAMES), False))
 
 class PerceptionNet(Protocol):
     """The contract of a network (an ``nn.Module``) the pipeline trains and scores.

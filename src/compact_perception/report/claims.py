@@ -38,7 +38,6 @@ run's stop reason from ``runs/<ds>/<mgn model>/seed<k>/summary.json``.
 from __future__ import annotations
 
 import functools
-import logging
 import math
 from collections import Counter
 from dataclasses import dataclass
@@ -52,7 +51,7 @@ from ..core import catalog
 from ..core.cache import frame_cluster
 from ..stats import (METHOD, MIN_SEEDS, NOT_DECIDABLE, CoverageResult, Design, MAX_SEEDS_TO_DECIDE, IntervalResult,
                      comparison_verdict, coverage, coverage_line, interval,
-                     seed_interval, seeds_to_decide, verdict)
+                     seed_interval, seeds_to_decide, undecidable_reasons, verdict)
 from .collect import (CONVERGED, ReportInputError, SeedSpec, frame_comparison, list_runs, load_row_frames,
                       read_summary, seeds_for)
 from .gate import NO_FLOOR, Gate, Margin, dataset_gate, failing_text
@@ -61,10 +60,8 @@ from .schema import (COMBINATION, COMBINATION_MODELS, COMPACT, DATASET_LABEL, LO
                      ROW_LABEL, TASK_COLUMNS, WEIGHT_KEYS, beats, column_stat, stat_columns, weight_key)
 from .scorecard import (FLOOR_NA, ClaimRow, claims_csv, claims_markdown, exact_counts,  # noqa: F401
                         verdict_counts)  # exact_counts, verdict_counts: the index imports them from here
-from .tables.formats import write_files
 from .tables.table3 import Table3Row, build_table3
 
-log = logging.getLogger(__name__)
 
 LABEL: dict[str, str] = {**ROW_LABEL, COMBINATION: "the combination"}
 CLAIM_MODELS: tuple[str, ...] = catalog.model_ids()  # the models whose per-frame scores the claims read
@@ -187,12 +184,6 @@ def _opt(v: float) -> Optional[float]:
     return float(v) if math.isfinite(v) else None
 
 
-def _seed_reasons(res: IntervalResult, rows: Sequence[str]) -> list[str]:
-    """``1 seed: the combination`` for every trained model with fewer than MIN_SEEDS seeds."""
-    return [f"{n} seed{'' if n == 1 else 's'}: {LABEL.get(r, r)}"
-            for r, n, fixed in zip(rows, res.n_seeds, res.fixed) if not fixed and n < MIN_SEEDS]
-
-
 def seeds_needed(res: IntervalResult, paper: Optional[float], margin: Optional[float] = None) -> str:
     """The scorecard's ``seeds_to_decide``: the seeds per model at which the row's design detects the
     paper's effect with 80% power (:func:`~compact_perception.stats.seeds_to_decide`), ``>N`` where
@@ -226,7 +217,7 @@ def _decided(ctx: _Context, claim: str, statement: str, paper: Optional[float], 
     """A row from its interval: the verdict, or ``not decidable`` with its reasons (too few seeds,
     a model not above the floor, ``extra_reasons``) first in the note."""
     above, floor_reason = _gate(ctx, uses)
-    reasons = _seed_reasons(res, [r for r, _ in uses]) + list(extra_reasons) + ([floor_reason] if floor_reason else [])
+    reasons = undecidable_reasons(res, [LABEL.get(r, r) for r, _ in uses]) + list(extra_reasons) + ([floor_reason] if floor_reason else [])
     verdict_ = NOT_DECIDABLE if reasons else comparison_verdict(res, margin)
     note = "; ".join([*reasons, note] if note else reasons)
     variant = MGN_FORMS.get(model, "") if claim in MGN_CLAIMS else ""
@@ -316,12 +307,6 @@ def mgn_weight_runs(root: Path, ds: str, model: str = "compact_15l_mgn",
             out.append((_weight_margin(run.run_dir / "summary.json", summ.get("final_weights")),
                         None if stop is None else str(stop)))
     return out
-
-
-def mgn_weight_margins(root: Path, ds: str, model: str = "compact_15l_mgn",
-                       seeds: Optional[Sequence[int]] = None) -> list[float]:
-    """The final-weight margins of :func:`mgn_weight_runs`."""
-    return [m for m, _ in mgn_weight_runs(root, ds, model, seeds)]
 
 
 def _mgn_weights(ctx: _Context, root: Path, model: str, seeds: Optional[Sequence[int]] = None) -> ClaimRow:
@@ -498,15 +483,6 @@ def coverage_text(frames: Mapping[str, Mapping[str, Sequence[pd.DataFrame]]]) ->
 
 
 # ----------------------------------------------------------------------------- output
-def write_claims(root: Path, datasets: Sequence[str], paper: PaperNumbers, out_dir: Path, *,
-                 frames: Optional[dict[str, dict[str, list[pd.DataFrame]]]] = None, seeds: SeedSpec = None) -> list[Path]:
-    """Write ``claims.md`` and ``claims.csv`` under ``out_dir``; returns the paths."""
-    frames = frames if frames is not None else {ds: load_row_frames(root, ds, CLAIM_MODELS, seeds) for ds in datasets}
-    rows = build_claims(root, datasets, paper, frames=frames, seeds=seeds)
-    log.info("claims: %s", {v: sum(r.verdict == v for r in rows) for v in sorted({r.verdict for r in rows})})
-    return write_files(out_dir, claims_files(rows, coverage_text(frames)))
-
-
 def claims_files(rows: list[ClaimRow], coverage: str = "") -> dict[str, str]:
     """The scorecard's ``claims.md`` and ``claims.csv`` (file name -> text); ``coverage``: the
     intervals' line (:func:`coverage_text`)."""

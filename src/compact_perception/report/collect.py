@@ -12,7 +12,7 @@ Inputs (ARCHITECTURE.md / SPEC 2), per run (one training seed ``k`` of a (datase
   the trivial predictors of the floor (:data:`compact_perception.floor.TRIVIAL`, no seed;
   :func:`load_floor_results`, :func:`load_floor_frames`);
 - ``data/eval/<ds>/<model>/seed<k>/per_frame.csv``: one row per test frame (``frame_id`` and
-  the scores), read by :func:`load_frames` for the bootstrap statistics; ``inputs.npz`` and
+  the scores), read by :func:`load_frames` for the intervals (:mod:`compact_perception.stats`); ``inputs.npz`` and
   ``predictions.npz`` beside it (the qualitative figures);
 - ``runs/<ds>/<model>/seed<k>/summary.json`` (``epochs_run``, ``best_epoch``, ``stop_reason``:
   ``plateau`` when early stopping ended it, ``max_epochs`` when the cap did; ``final_weights``)
@@ -427,15 +427,24 @@ def load_frames(root: Path, dataset: str, model: str, columns: Sequence[str] = (
     """Per-frame scores of every run of (``dataset``, ``model``) that :func:`list_runs` lists
     (with ``seeds``) and that has a ``per_frame.csv`` (``df.attrs["seed"]`` its seed); runs
     without one are logged and skipped."""
+    return run_frames(list_runs(root, dataset, model, seeds), columns, f"{dataset}/{model}")
+
+
+def run_frames(runs: Sequence[Any], columns: Sequence[str] = (), what: str = "") -> list[pd.DataFrame]:
+    """Per-frame scores of every run of ``runs`` (each with ``eval_dir`` and ``seed``) whose
+    ``eval_dir`` has a ``per_frame.csv`` (``df.attrs["seed"]`` its seed); with ``what`` (the
+    runs' name in the log), a run without one is logged; runs without an ``eval_dir`` are skipped."""
     out = []
-    for run in list_runs(root, dataset, model, seeds):
+    for run in runs:
+        if run.eval_dir is None:
+            continue
         p = run.eval_dir / "per_frame.csv"
         if p.is_file():
             df = read_per_frame(p, columns)
             df.attrs["seed"] = run.seed
             out.append(df)
-        else:
-            log.warning("no per-frame scores for %s/%s (%s missing)", dataset, model, p)
+        elif what:
+            log.warning("no per-frame scores for %s (%s missing)", what, p)
     return out
 
 

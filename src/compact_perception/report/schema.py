@@ -21,7 +21,7 @@ import numpy as np
 
 from ..core import catalog
 from ..floor import TRIVIAL
-from ..stats import stat_mean, stat_mv, stat_tm
+from ..stats import STATISTICS, stat_mean
 
 __all__ = [
     "COMBINATION", "COMBINATION_MODELS", "COMBINATION_SOURCE", "COMPACT", "ROW_ORDER", "ROW_LABEL", "DATASET_LABEL",
@@ -78,14 +78,14 @@ def _tex_label(label: str) -> str:
 
 
 COLUMN_TEX: dict[str, str] = {c: _tex_label(COLUMN_MD[c]) for c in TABLE2_COLUMNS}
-#: The statistic of a score's paired bootstrap (:mod:`compact_perception.stats`), from the task means.
-_SCORE_STAT: dict[str, Callable[[np.ndarray], np.ndarray]] = {"tm": stat_tm, "mv": stat_mv}
 
 
 def column_stat(col: str) -> Callable[[np.ndarray], np.ndarray]:
-    """The bootstrap statistic of a Table II column: the mean of a task metric, TM (eq. 6) or MV
-    (eq. 7) of the four task means; it reads the columns :func:`stat_columns` gives."""
-    return stat_mean if col in TASK_COLUMNS else _SCORE_STAT[col]
+    """The interval's statistic (:func:`compact_perception.stats.interval`) of a Table II column:
+    the mean of a task metric, or a score's formula of the four task means (TM, eq. 6; MV, eq. 7:
+    its entry in ``catalog.SCORES``, :data:`~compact_perception.stats.STATISTICS`); it reads the
+    columns :func:`stat_columns` gives."""
+    return stat_mean if col in TASK_COLUMNS else STATISTICS[col]
 
 
 def stat_columns(col: str) -> list[str]:

@@ -3,9 +3,11 @@
 
 Methods, per dataset of ``study.datasets`` (at ``scale``), in this order:
 
-- the paper's own weighting forms, the main runs (:data:`PAPER_FORMS`): ``compact_15l`` (equal
-  static weights), ``compact_15l_mgn`` (MGN, Algorithm 1), ``compact_15l_mgn_authors`` (MGN as
-  the authors' code runs it), read through :func:`.collect.list_runs`;
+- the paper's own weighting forms, the main runs (:func:`paper_forms`): the compact models with
+  the base model's input, each with the weighting of its recipe (params.yaml
+  ``train.models.<id>.weighting``): ``compact_15l`` (equal static weights), ``compact_15l_mgn``
+  (MGN, Algorithm 1), ``compact_15l_mgn_authors`` (MGN as the authors' code runs it), read
+  through :func:`.collect.list_runs`;
 - every study arm in ``study.arm_ids`` order (``runs/<ds>/study/<arm>/seed<k>/``,
   ``results/<ds>/study/<arm>/seed<k>/metrics.json``; :func:`compact_perception.core.layout.study_paths`),
   the single-task arms (weighting ``single``) included: they are Δm's reference.
@@ -26,7 +28,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Mapping, Optional, Sequence
 
@@ -40,24 +42,21 @@ from matplotlib.ticker import MaxNLocator  # noqa: E402
 
 from ..core import catalog, io  # noqa: E402
 from ..core.layout import RunPaths, study_paths  # noqa: E402
-from ..core.catalog import weighting_info as weighting_class  # noqa: E402  (label, adaptive: no torch)
-from .collect import (Cell, aggregate_cells, list_runs,  # noqa: E402
-                      read_metrics, read_per_frame, read_summary, with_derived)
-from .figures import mean_curve as _mean_curve, read_weight_curves, save_figure  # noqa: E402
+from .collect import (Cell, aggregate_cells, list_runs, run_frames,  # noqa: E402
+                      read_metrics, read_summary, with_derived)
+from .figures import mean_curve, read_weight_curves, save_figure  # noqa: E402
 from .gate import DatasetFloor, Gate, Margin, dataset_floor  # noqa: E402
 from .schema import DATASET_LABEL, METRIC_TASK  # noqa: E402
-from .tables.formats import csv_text, md_table  # noqa: E402
+from .tables.formats import csv_text, fmt_seeds, md_table  # noqa: E402
 
 log = logging.getLogger(__name__)
 
 __all__ = [
-    "PAPER_FORMS", "StudySpec", "StudyMethod", "SeedResult", "StudyRow", "StudyOutputs", "delta_m",
+    "paper_forms", "StudySpec", "StudyMethod", "SeedResult", "StudyRow", "StudyOutputs", "delta_m",
     "study_methods", "collect_seed_results", "reference_means", "build_rows", "weighting_csv",
     "weighting_markdown", "plot_study_weights", "write_study_report", "study_run_dirs",
 ]
 
-#: The paper's weighting forms: main runs of these models (model id -> weighting id).
-PAPER_FORMS: dict[str, str] = {"compact_15l": "static", "compact_15l_mgn": "mgn", "compact_15l_mgn_authors": "mgn"}
 #: The scores of a run: Table II's columns (the task metrics, TM, MV; eq. 6-7).
 RUN_SCORES: tuple[str, ...] = catalog.table2_columns()
 #: Every score column of a row, in table order.
@@ -79,13 +78,15 @@ MD_NAME, CSV_NAME = "weighting.md", "weighting.csv"
 class StudySpec:
     """What the report needs of params.yaml: ``datasets`` (``study.datasets`` at ``scale``), the
     training ``seeds`` per dataset (the base model's: ``Params.seeds_of``), the arms in
-    ``study.arm_ids`` order with their weighting id, and the task of each single-task arm."""
+    ``study.arm_ids`` order with their weighting id, the task of each single-task arm and the
+    paper's forms (:func:`paper_forms`: model id -> the weighting of its recipe)."""
 
     datasets: tuple[str, ...]
     seeds: Mapping[str, tuple[int, ...]]
     arm_ids: tuple[str, ...]
     arm_weighting: Mapping[str, str]
     single_task: Mapping[str, str] = field(default_factory=dict)
+    paper: Mapping[str, str] = field(default_factory=dict)
 
     @classmethod
     def from_params(cls, params: Any) -> "StudySpec":
@@ -101,7 +102,7 @@ class StudySpec:
         datasets = tuple(study.datasets.at(params.scale))
         group = catalog.MODELS[study.base_model].group
         seeds = {ds: tuple(int(k) for k in params.seeds_of(group, ds)) for ds in datasets}
-        return cls(datasets, seeds, arm_ids, weighting, single)
+        return cls(datasets, seeds, arm_ids, weighting, single, paper_forms(params))
 
 
 @dataclass(frozen=True)
@@ -118,20 +119,29 @@ class StudyMethod:
     @property
     def adaptive(self) -> bool:
         """Its weights change during training (a panel in the loss-weight figure)."""
-        return weighting_class(self.weighting).adaptive
+        return catalog.weighting_info(self.weighting).adaptive
+
+
+def paper_forms(params: Any) -> dict[str, str]:
+    """The paper's weighting forms, whose main runs the study shows: model id -> the weighting of
+    its recipe (``train.models.<id>.weighting``), for every compact model (catalog order) with the
+    LiDAR input of ``study.base_model``."""
+    base = catalog.MODELS[params.study.base_model]
+    return {m: str(params.train.models[m].weighting) for m in catalog.compact_model_ids()
+            if catalog.MODELS[m].lidar_channels == base.lidar_channels}
 
 
 def study_methods(spec: StudySpec) -> list[StudyMethod]:
-    """The paper forms (:data:`PAPER_FORMS`), then every arm in ``study.arm_ids`` order."""
+    """The paper forms (:attr:`StudySpec.paper`), then every arm in ``study.arm_ids`` order."""
     out = [StudyMethod(m, catalog.model_label(m) + (" (equal static weights)" if w == "static" else ""), "paper", w)
-           for m, w in PAPER_FORMS.items()]
+           for m, w in spec.paper.items()]
     for arm in spec.arm_ids:
         w = spec.arm_weighting[arm]
         if w == "single":
             task = spec.single_task[arm]
             out.append(StudyMethod(arm, f"Single-task ({catalog.TASKS[task].label})", "single", w, task))
         else:
-            out.append(StudyMethod(arm, weighting_class(w).label, "study", w))
+            out.append(StudyMethod(arm, catalog.weighting_info(w).label, "study", w))
     return out
 
 
@@ -251,18 +261,6 @@ def reference_means(results: Mapping[str, Sequence[SeedResult]], methods: Sequen
 Failing = Mapping[tuple[str, str], Sequence[Margin]]
 
 
-def _seed_frames(runs: Sequence[SeedResult]) -> list[pd.DataFrame]:
-    """The per-frame scores of the runs that have them (``attrs["seed"]`` set)."""
-    out = []
-    for r in runs:
-        path = r.eval_dir / "per_frame.csv" if r.eval_dir is not None else None
-        if path is not None and path.is_file():
-            df = read_per_frame(path)
-            df.attrs["seed"] = r.seed
-            out.append(df)
-    return out
-
-
 def gate_methods(results: Mapping[str, Mapping[str, Sequence[SeedResult]]], methods: Sequence[StudyMethod],
                  floors: Mapping[str, DatasetFloor]) -> dict[tuple[str, str], list[Margin]]:
     """Per (dataset, method with runs): the task metrics on which it is not above the floor
@@ -273,7 +271,7 @@ def gate_methods(results: Mapping[str, Mapping[str, Sequence[SeedResult]]], meth
         for m in methods:
             runs = per_method.get(m.id)
             if runs:
-                frames = _seed_frames(runs)
+                frames = run_frames(runs)
                 metrics = [catalog.metric_of(m.task)] if m.kind == "single" and m.task else catalog.metric_keys()
                 out[(ds, m.id)] = [g for g in (gate.margin_of(frames, c) for c in metrics) if not g.above]
     return out
@@ -359,8 +357,9 @@ def _fmt(cell: Optional[Cell], key: str) -> str:
     if cell is None or not math.isfinite(cell.mean):
         return NOT_AVAILABLE
     d = DECIMALS.get(key, 3)
-    sd = NO_SD if cell.std is None else (f"{cell.std:.{d}f}" if math.isfinite(cell.std) else NOT_AVAILABLE)
-    return f"{round(cell.mean, d) + 0.0:.{d}f} ± {sd}"     # + 0.0: no "-0.0"
+    finite_sd = cell.std is not None and math.isfinite(cell.std)
+    shown = replace(cell, mean=round(cell.mean, d) + 0.0, std=cell.std if finite_sd else None)  # + 0.0: no "-0.0"
+    return fmt_seeds(shown, decimals=d, no_sd=NO_SD if cell.std is None else NOT_AVAILABLE)
 
 
 def _cell(r: StudyRow, key: str) -> str:
@@ -442,7 +441,7 @@ def plot_study_weights(panels: Mapping[str, Sequence[Path]], out_png: Path, titl
     for curves in data.values():
         tasks += [t for c in curves for t in c if t not in tasks]
     colour = {t: f"C{i % 10}" for i, t in enumerate(tasks)}
-    means = {name: {t: _mean_curve([c[t] for c in curves if t in c]) for t in tasks if any(t in c for c in curves)}
+    means = {name: {t: mean_curve([c[t] for c in curves if t in c]) for t in tasks if any(t in c for c in curves)}
              for name, curves in data.items()}
     ref_name = next(iter(data))
     n = len(data)

@@ -68,19 +68,20 @@ one label per frame)::
 
     comp = make_comparison([{0: a[0], 1: a[1], 2: a[2]}, {0: b[0], 1: b[1], 2: b[2]}], episode)
     res = interval(comp, stat_tm, lambda v: v[..., 1] - v[..., 0])   # "A has a lower TM than B"
-    comparison_verdict(res, margin=None), res.mde, undecidable_note(res)
+    comparison_verdict(res, margin=None), res.mde, undecidable_reasons(res, ["A", "B"])
     coverage_line(coverage(Design.of(comp)))                          # the report's one line
 """
 from __future__ import annotations
 
-from .comparison import STATISTICS, Comparison, Contrast, Group, Statistic, make_comparison, stat_mean, stat_mv, stat_tm
+from .comparison import (STATISTICS, Comparison, Contrast, Group, Statistic, make_comparison, score_stat, stat_mean,
+                         stat_mv, stat_tm)
 from .coverage import (COMPOSITIONS, COVERAGE_SEED, COVERAGE_SIMS, LEVELS, SCENARIOS, CoverageResult, Design, Scenario,
                        coverage, coverage_line, simulate)
 from .distributions import normal_ppf, satterthwaite_df, t_cdf, t_ppf
 from .intervals import BOOTSTRAP_SEED, CONFIDENCE, METHOD, METHODS, N_BOOT, IntervalResult, interval, seed_interval
 from .power import ALPHA, MIN_SEEDS, POWER, decidable, mde
 from .verdicts import (CONTRADICTED, INCONCLUSIVE, MAX_SEEDS_TO_DECIDE, NOT_DECIDABLE, REPRODUCED, VERDICTS,
-                       comparison_verdict, seeds_to_decide, undecidable_note, verdict)
+                       comparison_verdict, seeds_to_decide, undecidable_reasons, verdict)
 
 __all__ = [
     "BOOTSTRAP_SEED", "N_BOOT", "CONFIDENCE", "ALPHA", "POWER", "MIN_SEEDS", "METHOD", "METHODS",
@@ -88,6 +89,6 @@ __all__ = [
     "COVERAGE_SEED", "COVERAGE_SIMS", "STATISTICS", "LEVELS", "COMPOSITIONS", "SCENARIOS",
     "Group", "Comparison", "make_comparison", "IntervalResult", "interval", "seed_interval",
     "t_cdf", "t_ppf", "normal_ppf", "satterthwaite_df", "mde", "seeds_to_decide", "MAX_SEEDS_TO_DECIDE", "decidable",
-    "comparison_verdict", "undecidable_note", "Scenario", "Design", "simulate", "CoverageResult", "coverage",
-    "coverage_line", "stat_mean", "stat_tm", "stat_mv", "verdict", "Statistic", "Contrast",
+    "comparison_verdict", "undecidable_reasons", "Scenario", "Design", "simulate", "CoverageResult", "coverage",
+    "coverage_line", "stat_mean", "score_stat", "stat_tm", "stat_mv", "verdict", "Statistic", "Contrast",
 ]

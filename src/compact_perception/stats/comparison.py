@@ -16,10 +16,10 @@ from typing import Callable, Mapping, Optional, Sequence, Union
 
 import numpy as np
 
-from ..metrics import metric_variance, total_metric
+from ..core import catalog
 
-__all__ = ["Statistic", "Contrast", "stat_mean", "stat_tm", "stat_mv", "STATISTICS", "Group", "Comparison",
-           "GroupLike", "make_comparison"]
+__all__ = ["Statistic", "Contrast", "stat_mean", "score_stat", "stat_tm", "stat_mv", "STATISTICS", "Group",
+           "Comparison", "GroupLike", "make_comparison"]
 
 #: (..., n_cols) column means -> (...) statistic.
 Statistic = Callable[[np.ndarray], np.ndarray]
@@ -32,20 +32,23 @@ def stat_mean(m: np.ndarray) -> np.ndarray:
     return np.asarray(m)[..., 0]
 
 
-def stat_tm(m: np.ndarray) -> np.ndarray:
-    """TM (eq. 6) of the means of columns (mae_de, iou_ss, iou_ls, iou_bevp)."""
-    m = np.asarray(m)
-    return total_metric(m[..., 0], m[..., 1], m[..., 2], m[..., 3])
+def score_stat(key: str) -> Statistic:
+    """The statistic of the score ``key`` of :data:`compact_perception.core.catalog.SCORES` (TM,
+    eq. 6; MV, eq. 7): its formula (``of_terms``) of the means of columns (mae_de, iou_ss,
+    iou_ls, iou_bevp)."""
+    of_terms = catalog.SCORES[key].of_terms
+
+    def stat(m: np.ndarray) -> np.ndarray:
+        m = np.asarray(m)
+        return of_terms(*(m[..., i] for i in range(len(catalog.metric_keys()))))
+
+    stat.__name__ = stat.__qualname__ = f"stat_{key}"
+    return stat
 
 
-def stat_mv(m: np.ndarray) -> np.ndarray:
-    """MV (eq. 7) of the means of columns (mae_de, iou_ss, iou_ls, iou_bevp)."""
-    m = np.asarray(m)
-    return metric_variance(m[..., 0], m[..., 1], m[..., 2], m[..., 3])
-
-
-#: The statistics by name (the simulation's scenarios name theirs).
-STATISTICS: dict[str, Statistic] = {"mean": stat_mean, "tm": stat_tm, "mv": stat_mv}
+STATISTICS: dict[str, Statistic] = {"mean": stat_mean, **{k: score_stat(k) for k in catalog.SCORES.keys()}}
+#: TM (eq. 6) and MV (eq. 7) of the means of columns (mae_de, iou_ss, iou_ls, iou_bevp).
+stat_tm, stat_mv = STATISTICS["tm"], STATISTICS["mv"]
 
 
 @dataclass(frozen=True, eq=False)

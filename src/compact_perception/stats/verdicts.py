@@ -1,5 +1,5 @@
 """What an interval lets one decide: the verdict rule (:func:`verdict`, :func:`comparison_verdict`,
-:func:`undecidable_note`) and the seeds a design needs to decide (:func:`seeds_to_decide`).
+:func:`undecidable_reasons`) and the seeds a design needs to decide (:func:`seeds_to_decide`).
 
 Verdict rule (:func:`verdict`, CLAIMS.md): ``reproduced`` when the whole 95% interval lies on
 the claimed side of 0 (strictly above 0), ``contradicted`` when it lies wholly on the other
@@ -17,14 +17,14 @@ net of the interaction stays).
 from __future__ import annotations
 
 import math
-from typing import Optional
+from typing import Optional, Sequence
 
 from .intervals import IntervalResult
 from .power import MIN_SEEDS, POWER, mde
 from .variance import _combined, _Parts
 
 __all__ = ["REPRODUCED", "CONTRADICTED", "INCONCLUSIVE", "NOT_DECIDABLE", "VERDICTS", "verdict",
-           "comparison_verdict", "undecidable_note", "MAX_SEEDS_TO_DECIDE", "seeds_to_decide"]
+           "comparison_verdict", "undecidable_reasons", "MAX_SEEDS_TO_DECIDE", "seeds_to_decide"]
 
 REPRODUCED, CONTRADICTED, INCONCLUSIVE = "reproduced", "contradicted", "inconclusive"
 NOT_DECIDABLE = "not decidable"
@@ -64,12 +64,12 @@ def comparison_verdict(res: IntervalResult, margin: Optional[float] = None) -> s
     return verdict(res.ci_low, res.ci_high, margin) if res.decidable else NOT_DECIDABLE
 
 
-def undecidable_note(res: IntervalResult) -> str:
-    """Why a comparison is not decidable, e.g. ``not decidable (1 vs 3 seeds)``; empty if it is."""
-    if res.decidable:
-        return ""
-    seeds = " vs ".join("fixed" if f else str(n) for n, f in zip(res.n_seeds, res.fixed))
-    return f"{NOT_DECIDABLE} ({seeds} seed{'' if seeds == '1' else 's'})"
+def undecidable_reasons(res: IntervalResult, labels: Sequence[str]) -> list[str]:
+    """Why a comparison is not decidable: ``1 seed: <label>`` for every trained (non-fixed) group
+    with fewer than :data:`~.power.MIN_SEEDS` seeds (``labels``: one per group, in order); empty
+    if every group has enough (a fixed group is exempt, :func:`~.power.decidable`)."""
+    return [f"{n} seed{'' if n == 1 else 's'}: {label}"
+            for label, n, fixed in zip(labels, res.n_seeds, res.fixed) if not fixed and n < MIN_SEEDS]
 
 
 #: The most seeds per model :func:`seeds_to_decide` looks at (beyond: more test episodes are needed).

@@ -37,14 +37,17 @@ def fmt_var(v: Optional[float], decimals: int = DECIMALS, latex: bool = False) -
     return f"{v:.{decimals}f}"
 
 
-def fmt_seeds(cell: Optional[Cell], latex: bool = False, decimals: int = DECIMALS) -> str:
-    """``mean ± sd`` over the seeds (sample sd), or ``mean (n=1)`` for a single seed."""
+def fmt_seeds(cell: Optional[Cell], latex: bool = False, decimals: int = DECIMALS, *,
+              no_sd: Optional[str] = None) -> str:
+    """``mean ± sd`` over the seeds (sample sd); without an sd (a single seed) ``mean (n=1)``, or
+    ``mean ± <no_sd>`` when ``no_sd`` is given (a table that keeps the sd column, e.g. ``—``)."""
     if cell is None:
         return NOT_APPLICABLE
     text = fmt_num(cell.mean, decimals)
+    pm = " $\\pm$ " if latex else " ± "
     if cell.std is not None:
-        return text + (" $\\pm$ " if latex else " ± ") + fmt_num(cell.std, decimals)
-    return text + f" (n={cell.n_seeds})"
+        return text + pm + fmt_num(cell.std, decimals)
+    return text + (pm + no_sd if no_sd is not None else f" (n={cell.n_seeds})")
 
 
 def join_values(values: Sequence[Any]) -> str:
