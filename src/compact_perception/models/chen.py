@@ -183,9 +183,11 @@ class ChenBEV(nn.Module):
         if not aux:
             raise RuntimeError("compute_losses needs a forward pass first")
         bev = L.bce_dice_loss(outputs["bevp"], batch["bevp"])
-        rec_rgb = F.mse_loss(aux["rgb_rec"], batch["rgb"][:, 0])
-        rec_ls = F.binary_cross_entropy(aux["ls_rec"].clamp(1e-6, 1 - 1e-6), batch["ls"])
-        kl = aux["kl"] / self._pixels
+        # The reconstructions come out of the forward in the autocast dtype (bf16/fp16), which the
+        # training step keeps to the forward: its losses are float32, these too (a no-op in fp32).
+        rec_rgb = F.mse_loss(aux["rgb_rec"].float(), batch["rgb"][:, 0].float())
+        rec_ls = F.binary_cross_entropy(aux["ls_rec"].float().clamp(1e-6, 1 - 1e-6), batch["ls"].float())
+        kl = aux["kl"].float() / self._pixels
         return {"bevp": bev + rec_rgb + rec_ls + kl}
 
     def shared_layers(self) -> dict[str, list[str]]:
