@@ -194,17 +194,36 @@ def test_both_scoring_rules_by_hand_on_a_sigmoid_ls_head() -> None:
     Sigmoid outputs: cell 0 = [0.7, 0.6, 0.1] (two classes fire), cell 1 = [0.2, 0.3, 0.4] (none
     fires), cell 2 = [0.1, 0.2, 0.9]. Ground truth: cell 0 class 1, cell 1 class 2, cell 2 no
     label (no LiDAR point: the all-zero vector).
-    Eq. (5) on the raw outputs: predicted {c0 k0, c0 k1, c2 k2}, truth {c0 k1, c1 k2}:
-    intersection 1, union 4 -> 0.25 (cell 2's prediction counts against it: a point is predicted
-    where there is none).
+    Eq. (5) on the raw outputs at the labelled cells: cell 2 left out, predicted {c0 k0, c0 k1},
+    truth {c0 k1, c1 k2}: intersection 1, union 3 -> 1/3 (over the whole grid cell 2's k2 would
+    join the union: 1/4).
     Arg-max rule: cell 0 -> class 0, cell 1 -> class 2, cell 2 left out (no label): predicted
     {c0 k0, c1 k2}, truth {c0 k1, c1 k2}: intersection 1, union 3 -> 1/3."""
     from compact_perception.metrics import iou_argmax_per_sample
 
     out = torch.tensor([[0.7, 0.2, 0.1], [0.6, 0.3, 0.2], [0.1, 0.4, 0.9]], dtype=D).reshape(1, 3, 1, 3)
     gt = torch.tensor([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], dtype=D).reshape(1, 3, 1, 3)
-    assert compute_metrics({"ls": out}, {"ls": gt}, argmax_tasks=())["iou_ls"] == pytest.approx(0.25)
+    assert compute_metrics({"ls": out}, {"ls": gt}, argmax_tasks=())["iou_ls"] == pytest.approx(1 / 3)
+    assert iou(out, gt).item() == pytest.approx(0.25)  # eq. (5) itself, whole grid
     assert iou_argmax_per_sample(out, gt).tolist() == pytest.approx([1 / 3])
+
+
+def test_unlabelled_cells_count_for_no_model_but_bevp_is_scored_whole() -> None:
+    """A softmax LS head (PolarNet's) on a 2x2 grid, 2 classes; only cells 0 and 1 hold a LiDAR
+    point (truth class 0 and class 1), cells 2 and 3 none (all-zero vectors). Softmax class-0
+    probabilities [0.9, 0.2, 0.8, 0.7] (class 1: 1 - p). Labelled cells only: predicted
+    {c0 k0, c1 k1}, truth the same -> IoU 1. Over the whole grid the two empty cells would add
+    {c2 k0, c3 k0} to the union: 2/4 = 0.5. The same values as a BEVP map (binary masks, an
+    all-zero vector a labelled "none") keep the whole grid: predicted {c0 k0, c1 k1, c2 k0,
+    c3 k0} against {c0 k0, c1 k1} -> 2/4."""
+    p0 = torch.tensor([0.9, 0.2, 0.8, 0.7], dtype=D)
+    probs = torch.stack([p0, 1 - p0]).reshape(1, 2, 2, 2)
+    gt = torch.tensor([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]], dtype=D).reshape(1, 2, 2, 2)
+    assert compute_metrics({"ls": probs}, {"ls": gt}, argmax_tasks=())["iou_ls"] == pytest.approx(1.0)
+    assert compute_metrics({"ls": probs}, {"ls": gt}, argmax_tasks=("ls",))["iou_ls"] == pytest.approx(1.0)
+    assert compute_metrics_per_sample({"ls": probs}, {"ls": gt}, argmax_tasks=())["iou_ls"].tolist() == [1.0]
+    assert iou(probs, gt).item() == pytest.approx(0.5)
+    assert compute_metrics({"bevp": probs}, {"bevp": gt}, argmax_tasks=())["iou_bevp"] == pytest.approx(0.5)
 
 
 def test_argmax_rule_averages_views_and_keeps_every_labelled_pixel() -> None:

@@ -51,7 +51,8 @@ ARGMAX_DEFINITION = (
     "the other scoring rule for the class maps (SS, LS): eq. (5) on the arg-max class map (each pixel's "
     "highest-scoring class), pixels without a ground-truth label left out, per view and averaged over views; "
     "mean and population variance over frames. Table II scores every row by eq. (5) on the raw outputs (the "
-    "paper's rule), which lets a sigmoid head predict nothing and leaves a softmax head below 0.5 where it is unsure"
+    "paper's rule, at the labelled pixels of SS and LS too), which lets a sigmoid head predict nothing and leaves a "
+    "softmax head below 0.5 where it is unsure"
 )
 DEPTH_COLUMNS: tuple[str, ...] = tuple(DEPTH_METRICS.keys())
 CLASS_IOU_DEFINITION = (

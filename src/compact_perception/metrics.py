@@ -3,6 +3,14 @@
 - :func:`mae`            eq. (4): mean |pred - gt| over elements and views.
 - :func:`iou`            eq. (5): ``|pred>t AND gt>t| / |pred>t OR gt>t|`` over the whole
   one-hot tensor of a view, averaged over views (t = 0.5).
+  **Pixels without a label** in the class maps (SS, LS: an all-zero one-hot vector, 255 in the
+  cache; an LS cell no LiDAR point reached, a nuScenes camera pixel no LiDAR point projects to)
+  count for no model: :func:`labelled_only` sets the prediction there to 0 before eq. (5)
+  (:data:`CLASS_MAP_TASKS`). The ground truth says nothing about such a cell, PolarSeg and
+  SemanticKITTI score LiDAR segmentation at the points only, and the LiDAR input shows every
+  model which cells hold a point; over the whole grid, a softmax head (PolarNet), whose loss
+  ignores those cells, would be charged a false positive in every one of them. BEVP is a set of
+  binary masks where an all-zero vector is a labelled "none of these", so it is scored whole.
   **Empty union** (nothing predicted and nothing labelled in a view): IoU = 1.0 for that view,
   a perfect agreement on "nothing is there"; it is neither dropped nor counted as 0.
 - :func:`total_metric`   eq. (6): ``TM = MAE + (1-IoU_SS) + (1-IoU_LS) + (1-IoU_BEVP)``.
@@ -59,6 +67,9 @@ __all__ = [
     "metric_variance",
     "compute_metrics",
     "argmax_one_hot",
+    "labelled_only",
+    "eq5_inputs",
+    "CLASS_MAP_TASKS",
     "scored_outputs",
     "compute_metrics_per_sample",
     "iou_argmax_per_sample",
@@ -102,6 +113,26 @@ def _iou_from_counts(inter: Tensor, union: Tensor) -> Tensor:
     """inter/union with the documented empty-union convention (IoU = 1)."""
     safe = torch.where(union > 0, union, torch.ones_like(union))
     return torch.where(union > 0, inter / safe, torch.ones_like(inter))
+
+
+#: The class-map tasks (one class per pixel or cell, one-hot): their unlabelled pixels are left
+#: out of eq. (5) (:func:`labelled_only`) and they are scored by the arg-max rule as well.
+CLASS_MAP_TASKS: tuple[str, ...] = ("ss", "ls")
+
+
+def labelled_only(pred: Tensor, target: Tensor) -> Tensor:
+    """``pred`` with 0 at every pixel whose one-hot ``target`` vector is all zero (no label), so
+    eq. (5) neither rewards nor charges a prediction there; same shape as ``pred``."""
+    g = as_views(target.detach())
+    labelled = (g.amax(dim=2, keepdim=True) > 0.5).to(pred.dtype)  # (B,V,1,H,W)
+    return (as_views(pred.detach()) * labelled).reshape(pred.shape)
+
+
+def eq5_inputs(outputs: Mapping[str, Tensor], targets: Mapping[str, Tensor]) -> dict[str, Tensor]:
+    """The outputs eq. (5) compares with ``targets``: the class maps' predictions at their
+    labelled pixels only (:func:`labelled_only`), every other output as it is."""
+    return {k: labelled_only(v, targets[k]) if k in CLASS_MAP_TASKS and k in targets else v
+            for k, v in outputs.items()}
 
 
 @torch.no_grad()
@@ -183,7 +214,7 @@ def compute_metrics(outputs: Mapping[str, Tensor], targets: Mapping[str, Tensor]
 
     ``mv`` here is eq. (7) of *this batch's* four scores; a mean of it over batches or frames
     is not the paper's MV (use :func:`scores_from_means` on the split's means)."""
-    outputs = scored_outputs(outputs, argmax_tasks)
+    outputs = eq5_inputs(scored_outputs(outputs, argmax_tasks), targets)
     out: dict[str, float] = {}
     if "de" in outputs and "de" in targets:
         out["mae_de"] = float(mae(outputs["de"], targets["de"]))
@@ -202,15 +233,14 @@ def iou_argmax_per_sample(pred: Tensor, target: Tensor) -> Tensor:
     one-hot map, scored by eq. (5) per view over the pixels that have a ground-truth label (an
     all-zero target vector, 255 in the cache, is left out: no label to be right or wrong about),
     averaged over views. The standard reading of a segmentation map, fair to softmax and sigmoid
-    heads alike; Table II keeps eq. (5) on the raw outputs (the paper's rule, SPEC 6)."""
+    heads alike; Table II keeps eq. (5) on the raw outputs (the paper's rule, SPEC 6), at the
+    labelled pixels too."""
     g = as_views(target.detach())
-    labelled = (g.amax(dim=2, keepdim=True) > 0.5).to(g.dtype)               # (B,V,1,H,W)
-    p = argmax_one_hot(as_views(pred.detach()).to(g.dtype)) * labelled
-    return iou_per_sample(p, g)
+    return iou_per_sample(labelled_only(argmax_one_hot(as_views(pred.detach()).to(g.dtype)), g), g)
 
 
-#: The task heads scored by the arg-max rule beside eq. (5) (the class maps: SS and LS).
-ARGMAX_TASKS: tuple[str, ...] = ("ss", "ls")
+#: The task heads scored by the arg-max rule beside eq. (5): the class maps.
+ARGMAX_TASKS: tuple[str, ...] = CLASS_MAP_TASKS
 
 
 def compute_metrics_per_sample(outputs: Mapping[str, Tensor], targets: Mapping[str, Tensor], *,
@@ -219,7 +249,7 @@ def compute_metrics_per_sample(outputs: Mapping[str, Tensor], targets: Mapping[s
 
     Per-frame scores only (``catalog.SCORES[k].per_frame``: TM; MV is not a per-frame quantity,
     eq. 7 takes the test-set means)."""
-    outputs = scored_outputs(outputs, argmax_tasks)
+    outputs = eq5_inputs(scored_outputs(outputs, argmax_tasks), targets)
     out: dict[str, Tensor] = {}
     if "de" in outputs and "de" in targets:
         out["mae_de"] = mae_per_sample(outputs["de"], targets["de"])

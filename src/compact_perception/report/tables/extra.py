@@ -239,7 +239,7 @@ def _texts(r: ExtraRow) -> list[str]:
 ARGMAX_TEXT = (
     "**Two scoring rules for the class maps.** Table II scores every row by eq. (5) on the raw outputs (a class "
     "counts where its output exceeds 0.5: the paper's rule, which lets a sigmoid head predict nothing and leaves a "
-    "softmax head below 0.5 where it is unsure). "
+    "softmax head below 0.5 where it is unsure), at the labelled pixels and cells. "
     + " and ".join(f"`{EXTRA_MD[m]}`" for m in EXTRA_ARGMAX)
     + " score the same outputs by the **arg-max rule**: each pixel's highest-scoring class, one-hot, under eq. (5), "
     "pixels without a ground-truth label left out, per view and averaged over the views; mean over the test frames "

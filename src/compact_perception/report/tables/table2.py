@@ -6,7 +6,9 @@ LaTeX (booktabs) and CSV.
 
 One scoring rule for every row: eq. (5) on the raw outputs (a class counts where its output
 exceeds 0.5), the paper's, for the compact networks' sigmoid heads and the softmax baselines
-alike; the arg-max rule sits beside it in the extra metrics (``extra_metrics.md``).
+alike, with the class maps' unlabelled pixels (an LS cell no LiDAR point reached) left out for
+every row (:func:`compact_perception.metrics.labelled_only`); the arg-max rule sits beside it in
+the extra metrics (``extra_metrics.md``).
 
 Every model is trained once per training seed (params ``seeds``; the baselines
 ``baseline_seeds``), so each metric is shown twice, each labelled:
@@ -67,7 +69,9 @@ MGN_NOTE = ("The paper prints one 15L+MGN row. Its Table II came from the author
 #: The one scoring rule of Table II, and where the other one is.
 SCORING_RULE = ("**Scoring rule, every row**: eq. (5) on the raw outputs (a class counts where its output exceeds "
                 "0.5), the paper's, for the compact networks' sigmoid heads and the softmax baselines (GradNorm's SS, "
-                "PolarNet's LS) alike; the arg-max rule (each pixel's highest-scoring class, labelled pixels only) is "
+                "PolarNet's LS) alike; pixels and cells without a label (an LS cell no LiDAR point reached, a nuScenes camera pixel no point "
+                "projects to) count for no row, as LiDAR segmentation is scored at the points (PolarSeg, "
+                "SemanticKITTI); the arg-max rule (each pixel's highest-scoring class, labelled pixels only) is "
                 "in the extra metrics (`extra_metrics.md`, `IoU_SS (arg-max)`, `IoU_LS (arg-max)`).")
 #: Per-frame scores of every row of one dataset: row id -> runs (seeds), frame_id-indexed.
 RowFrames = dict[str, list[pd.DataFrame]]
