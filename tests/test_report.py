@@ -490,6 +490,27 @@ def test_headline_and_the_floor_in_the_index(tmp_path: Path) -> None:
             f"{counts['inconclusive']} inconclusive; {counts['not_decidable']} not decidable") in index
 
 
+def test_index_says_whether_each_baseline_was_trained_long_enough_to_judge(tmp_path: Path) -> None:
+    """The floor section's last line, per baseline, from its runs' stop_reason and its gate: trained
+    to a plateau and above the floor (it learns); stopped by the cap while below the floor
+    (undecided: a capped run says nothing about whether the network can learn)."""
+    plateau, capped = tmp_path / "plateau", tmp_path / "capped"
+    _tree(plateau, ("A",))
+    build_reports(plateau, plateau / "reports", datasets=("A",), models=MODELS, scale_name="full", seeds=SEEDMAP)
+    index = (plateau / "reports/index.md").read_text()
+    for label in ("Chen et al.", "PolarNet", "GradNorm"):
+        assert f"{label}: Set A: trained to a plateau and above the floor: it learns" in index
+    _tree(capped, ("A",), stop_reason="max_epochs", bases=bases_with(polarnet={"iou_ls": 0.0}))
+    build_reports(capped, capped / "reports", datasets=("A",), models=MODELS, scale_name="default", seeds=SEEDMAP)
+    index = (capped / "reports/index.md").read_text()
+    epochs = "/".join(str(e) for e in sorted({n_epochs("polarnet", k) for k in SEEDS}))
+    assert (f"PolarNet: Set A: stopped by its epoch cap after {epochs} epochs, not trained to a plateau, below the "
+            "floor on LS: undecided whether it can learn.") in index
+    assert f"Chen et al.: Set A: stopped by its epoch cap after {epochs} epochs, not trained to a plateau, above the " \
+        "floor." in index
+    assert "[docs/results.md](../docs/results.md#do-the-baselines-learn)" in index
+
+
 def test_plots_csv_one_row_per_run_and_epoch(tmp_path: Path) -> None:
     _tree(tmp_path, ("A", "nuscenes"), baseline_seeds=(0,))
     _stale_run(tmp_path, "nuscenes", "compact_15l_mgn")

@@ -33,12 +33,12 @@ from pathlib import Path
 from typing import Any, Optional, Sequence
 
 from ..core import io
-from ..core.catalog import MODELS, compact_model_ids, dataset_ids, metric_of, model_ids
+from ..core.catalog import MODELS, STOP_PLATEAU, compact_model_ids, dataset_ids, metric_of, model_ids
 from ..core.layout import RunPaths
 from .claims import build_claims, claims_files, coverage_text, exact_counts, verdict_counts
 from .collect import (DatasetScale, ModelResult, SeedSpec, collect_scale, list_runs, load_npz, load_results,
                       load_row_frames, read_json, seeds_for)
-from .gate import Gate, dataset_gate
+from .gate import BELOW, Gate, dataset_gate
 from .figures import plot_loss_weights, plot_qualitative, plot_training_curves
 from .paper import PaperNumbers, load_paper_numbers
 from .plots import write_plot_data
@@ -252,8 +252,50 @@ def _floor_sentence(ds: str, gate: Gate, models: Sequence[str]) -> str:
             + (f"; not: {'; '.join(below)}" if below else "") + ".")
 
 
+def _learning_status(facts: Sequence[dict[str, Any]], failing: Sequence[Any]) -> str:
+    """How a model's runs on one dataset stopped and where that leaves them against the floor."""
+    below = [x for x in failing if x.status == BELOW]
+    where = ("above the floor" if not failing else
+             "below the floor on " + "/".join(METRIC_TASK[x.metric] for x in below) if below else
+             "better than the floor, not shown above it (" + "; ".join(f"{METRIC_TASK[x.metric]} {x.reason()}"
+                                                                       for x in failing) + ")")
+    capped = [f for f in facts if f.get("stop_reason") != STOP_PLATEAU]
+    if capped:
+        epochs = sorted({int(f["epochs_run"]) for f in capped if f.get("epochs_run") is not None})
+        n = "/".join(map(str, epochs)) or "?"
+        return (f"stopped by its epoch cap after {n} epoch{'' if epochs == [1] else 's'}, not trained to a plateau, "
+                f"{where}" + ("" if not below else ": undecided whether it can learn"))
+    if not failing:
+        return "trained to a plateau and above the floor: it learns"
+    if below:
+        return f"trained to a plateau and still {where}: it does not learn at these settings"
+    return f"trained to a plateau and {where}"
+
+
+def _learning_sentence(parts: ReportParts) -> Optional[str]:
+    """Per baseline: whether its runs were trained to a plateau (``summary.json`` ``stop_reason``)
+    and, so, whether its place against the floor says it learns at this scale's settings."""
+    per_model = []
+    for m in [m for m in ROW_ORDER if m in MODELS and MODELS[m].group == "baseline"]:
+        by_status: dict[str, list[str]] = {}
+        for ds, gate in parts.gates.items():
+            facts = parts.scales[ds].epochs.get(m) if ds in parts.scales else None
+            if m not in parts.results.get(ds, {}) or not facts or not gate.has_floor:
+                continue
+            status = _learning_status(facts, gate.failing(m, [metric_of(t) for t in MODELS[m].tasks]))
+            by_status.setdefault(status, []).append(DATASET_LABEL.get(ds, ds))
+        if by_status:
+            per_model.append(f"{ROW_LABEL.get(m, m)}: " + "; ".join(f"{', '.join(d)}: {s}" for s, d in by_status.items()))
+    if not per_model:
+        return None
+    return ("Do the baselines learn at this scale? " + ". ".join(per_model) + ". A run stopped by its cap says "
+            "nothing about whether the network can learn; what each baseline does when trained to its plateau at "
+            "`scale: full` is measured in [docs/results.md](../docs/results.md#do-the-baselines-learn).")
+
+
 def _floor_section(parts: ReportParts) -> list[str]:
-    """Per dataset, one sentence naming the models above the floor (Table II has the margins)."""
+    """Per dataset, one sentence naming the models above the floor (Table II has the margins), then
+    one on whether the baselines were trained long enough for their place to mean they cannot learn."""
     if not parts.gates:
         return []
     out = ["## Above the floor", "",
@@ -264,7 +306,8 @@ def _floor_section(parts: ReportParts) -> list[str]:
         models = [m for m in ROW_ORDER if m in parts.results.get(ds, {})]
         if models or gate.has_floor:
             out.append(f"- {_floor_sentence(ds, gate, models)}")
-    return out + [""]
+    learning = _learning_sentence(parts)
+    return out + ([f"- {learning}"] if learning else []) + [""]
 
 
 def _body(markdown: str) -> str:
