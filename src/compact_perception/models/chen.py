@@ -183,11 +183,12 @@ class ChenBEV(nn.Module):
         if not aux:
             raise RuntimeError("compute_losses needs a forward pass first")
         bev = L.bce_dice_loss(outputs["bevp"], batch["bevp"])
-        # The reconstructions come out of the forward in the autocast dtype (bf16/fp16), which the
-        # training step keeps to the forward: its losses are float32, these too (a no-op in fp32).
-        rec_rgb = F.mse_loss(aux["rgb_rec"].float(), batch["rgb"][:, 0].float())
-        rec_ls = F.binary_cross_entropy(aux["ls_rec"].float().clamp(1e-6, 1 - 1e-6), batch["ls"].float())
-        kl = aux["kl"].float() / self._pixels
+        # The reconstructions keep the forward's autocast dtype (bf16/fp16); the training step
+        # computes losses outside autocast, so each is cast to its target's dtype (a no-op in an
+        # fp32 or fp64 run).
+        rec_rgb = F.mse_loss(aux["rgb_rec"].to(batch["rgb"].dtype), batch["rgb"][:, 0])
+        rec_ls = F.binary_cross_entropy(aux["ls_rec"].to(batch["ls"].dtype).clamp(1e-6, 1 - 1e-6), batch["ls"])
+        kl = aux["kl"].to(bev.dtype) / self._pixels
         return {"bevp": bev + rec_rgb + rec_ls + kl}
 
     def shared_layers(self) -> dict[str, list[str]]:
