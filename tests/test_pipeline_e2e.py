@@ -229,15 +229,17 @@ def test_parameter_changes_touch_only_their_stages(pipeline):
     repo, env, _ = pipeline
     original = (repo / "params.yaml").read_text()
     try:
+        # the report reads every setting that shapes a run too: it compares them with those of the
+        # recorded runs trained to their plateau (report/plateau.py) and names what changed (6 s)
         set_param(repo, ("datasets", "A", "seed_offset"), 7)
-        assert changed_stages(repo, env) == {"generate@A"}
+        assert changed_stages(repo, env) == {"generate@A", "report"}
         (repo / "params.yaml").write_text(original)
         set_param(repo, ("preprocess", "fill_neighbours"), False)
-        assert changed_stages(repo, env) == {"preprocess@A", "ingest_nuscenes"}
+        assert changed_stages(repo, env) == {"preprocess@A", "ingest_nuscenes", "report"}
         (repo / "params.yaml").write_text(original)
         # a training budget is not data: the seeds and epoch cap leave generate and preprocess alone
         set_param(repo, ("datasets", "A", "training", "max_epochs", "default"), 3)
-        assert changed_stages(repo, env) == {"train@A", "evaluate@A"}
+        assert changed_stages(repo, env) == {"train@A", "evaluate@A", "report"}
     finally:
         (repo / "params.yaml").write_text(original)
     assert changed_stages(repo, env) == set()

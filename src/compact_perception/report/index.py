@@ -41,6 +41,7 @@ from .collect import (DatasetScale, ModelResult, SeedSpec, collect_scale, list_r
 from .gate import BELOW, Gate, dataset_gate
 from .figures import plot_loss_weights, plot_qualitative, plot_training_curves
 from .paper import PaperNumbers, load_paper_numbers
+from .plateau import PlateauEvidence, recorded_sentence
 from .plots import write_plot_data
 from .schema import DATASET_LABEL, FLOOR_LABEL, METRIC_TASK, MGN_FORMS, ROW_LABEL, ROW_ORDER
 from .selection import selected_efficiency
@@ -114,6 +115,8 @@ class ReportParts:
     study: Optional[StudyOutputs] = None
     study_figures: dict[str, str] = field(default_factory=dict)
     figures: dict[str, dict[str, str]] = field(default_factory=dict)
+    plateau: Optional[PlateauEvidence] = None
+    plateau_link: str = ""
 
 
 def read_inputs(root: Path, datasets: Sequence[str], models: Sequence[str], seeds: SeedSpec,
@@ -255,21 +258,22 @@ def _floor_sentence(ds: str, gate: Gate, models: Sequence[str]) -> str:
 def _learning_status(facts: Sequence[dict[str, Any]], failing: Sequence[Any]) -> str:
     """How a model's runs on one dataset stopped and where that leaves them against the floor."""
     below = [x for x in failing if x.status == BELOW]
-    where = ("above the floor" if not failing else
-             "below the floor on " + "/".join(METRIC_TASK[x.metric] for x in below) if below else
-             "better than the floor, not shown above it (" + "; ".join(f"{METRIC_TASK[x.metric]} {x.reason()}"
-                                                                       for x in failing) + ")")
+    if below:
+        where = "below the floor on " + "/".join(METRIC_TASK[x.metric] for x in below)
+    elif failing:
+        where = ("better than the floor, not shown above it ("
+                 + "; ".join(f"{METRIC_TASK[x.metric]} {x.reason()}" for x in failing) + ")")
+    else:
+        where = "above the floor"
     capped = [f for f in facts if f.get("stop_reason") != STOP_PLATEAU]
     if capped:
         epochs = sorted({int(f["epochs_run"]) for f in capped if f.get("epochs_run") is not None})
         n = "/".join(map(str, epochs)) or "?"
         return (f"stopped by its epoch cap after {n} epoch{'' if epochs == [1] else 's'}, not trained to a plateau, "
-                f"{where}" + ("" if not below else ": undecided whether it can learn"))
-    if not failing:
-        return "trained to a plateau and above the floor: it learns"
+                f"{where}" + (": undecided whether it can learn" if below else ""))
     if below:
         return f"trained to a plateau and still {where}: it does not learn at these settings"
-    return f"trained to a plateau and {where}"
+    return f"trained to a plateau and {where}" + ("" if failing else ": it learns")
 
 
 def _learning_sentence(parts: ReportParts) -> Optional[str]:
@@ -289,8 +293,9 @@ def _learning_sentence(parts: ReportParts) -> Optional[str]:
     if not per_model:
         return None
     return ("Do the baselines learn at this scale? " + ". ".join(per_model) + ". A run stopped by its cap says "
-            "nothing about whether the network can learn; what each baseline does when trained to its plateau at "
-            "`scale: full` is measured in [docs/results.md](../docs/results.md#do-the-baselines-learn).")
+            "nothing about whether the network can learn; what each baseline does when trained to its plateau is "
+            "in the next line where a record of such runs exists, and in "
+            "[docs/results.md](../docs/results.md#do-the-baselines-learn).")
 
 
 def _floor_section(parts: ReportParts) -> list[str]:
@@ -306,8 +311,11 @@ def _floor_section(parts: ReportParts) -> list[str]:
         models = [m for m in ROW_ORDER if m in parts.results.get(ds, {})]
         if models or gate.has_floor:
             out.append(f"- {_floor_sentence(ds, gate, models)}")
-    learning = _learning_sentence(parts)
-    return out + ([f"- {learning}"] if learning else []) + [""]
+    baselines = [m for m in ROW_ORDER if m in MODELS and MODELS[m].group == "baseline"
+                 and any(m in r for r in parts.results.values())]
+    lines = [_learning_sentence(parts),
+             recorded_sentence(parts.plateau, baselines, list(parts.results), parts.plateau_link)]
+    return out + [f"- {line}" for line in lines if line] + [""]
 
 
 def _body(markdown: str) -> str:
@@ -509,7 +517,7 @@ def _rel(p: Path, base: Path) -> str:
 def build_reports(root: Path, out_dir: Path, *, datasets: Sequence[str] = dataset_ids(),
                   models: Sequence[str] = model_ids(), scale_name: str = "", figure_frame: int = 0,
                   paper: Optional[PaperNumbers] = None, seeds: SeedSpec = None,
-                  study: Optional[Any] = None) -> list[str]:
+                  study: Optional[Any] = None, plateau: Optional[PlateauEvidence] = None) -> list[str]:
     """Write all tables, figures, plots data, the headline metrics and ``index.md`` under
     ``out_dir`` (atomic swap).
 
@@ -517,6 +525,8 @@ def build_reports(root: Path, out_dir: Path, *, datasets: Sequence[str] = datase
     :func:`.collect.list_runs`): only those seeds' runs count. ``study``: the validated params
     (``scale``, ``seeds``, ``study.*``) or a :class:`.study.StudySpec`, for the loss-balancing
     study's table and figures (:func:`.study.write_study_report`); ``None`` leaves them out.
+    ``plateau``: a record of runs trained to their plateau at a larger scale
+    (:mod:`.plateau`), for the floor section's line on whether the baselines learn.
     Missing inputs are tolerated (logged; the tables say ``n/a``, figures are skipped); a
     malformed input raises :class:`~.collect.ReportInputError` naming the file. Returns the
     written paths relative to ``out_dir``.
@@ -528,6 +538,9 @@ def build_reports(root: Path, out_dir: Path, *, datasets: Sequence[str] = datase
         tmp = Path(stage)
         tables_dir, figures_dir = tmp / "tables", tmp / "figures" / "report"
         parts, written = write_tables(inp, tables_dir, scale_name)
+        if plateau is not None:
+            parts.plateau = plateau
+            parts.plateau_link = Path(os.path.relpath(Path(plateau.record.path).resolve(), out_dir.resolve())).as_posix()
         written += write_plot_data(root, inp.datasets, inp.models, tmp / "plots", seeds,
                                    study_run_dirs(root, study) if study is not None else ())
         written += write_study(inp, study, parts, tables_dir, figures_dir, tmp)

@@ -1,0 +1,176 @@
+"""The record of runs trained to their plateau (report/plateau.py, benchmarks/record_plateau.py):
+what it keeps of a run, which of today's settings it notices changed, what the report's floor
+section says from it, and its errors."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+from compact_perception.core.config import load_params, parse_params
+from compact_perception.report.collect import ReportInputError
+from compact_perception.report.index import build_reports
+from compact_perception.report.plateau import (PlateauRecord, PlateauRun, changed_settings, evidence, load_record,
+                                               recorded_sentence, settings_at)
+from report_fixture import MODELS, bases_with, build_tree, seed_map
+
+ROOT = Path(__file__).resolve().parents[1]
+SCRIPT = ROOT / "benchmarks" / "record_plateau.py"
+BASELINES = ["chen_bev", "polarnet", "gradnorm_segnet"]
+
+
+def _params(**changes):
+    """The repository's params with ``changes`` applied (dotted key -> value)."""
+    data = yaml.safe_load((ROOT / "params.yaml").read_text())
+    for key, value in changes.items():
+        node = data
+        *path, last = key.split(".")
+        for k in path:
+            node = node[k]
+        node[last] = value
+    return parse_params(data)
+
+
+def _run(model: str = "chen_bev", margin: dict | None = None, stop: str = "plateau", settings=None) -> PlateauRun:
+    params = load_params(ROOT / "params.yaml")
+    return PlateauRun("A", model, 0, 25, 16, 100, stop, 112.6, margin or {"iou_bevp": 0.025},
+                      settings if settings is not None else settings_at(params, model, "A", "full"))
+
+
+def _record(*runs: PlateauRun) -> PlateauRecord:
+    return PlateauRecord("benchmarks/records/full_plateau.json", "full", "abc1234", "a 2-core CPU", "dvc repro",
+                         tuple(runs))
+
+
+def test_settings_are_the_values_that_shape_the_run_at_the_records_scale() -> None:
+    params = load_params(ROOT / "params.yaml")
+    s = settings_at(params, "chen_bev", "A", "full")
+    assert params.scale == "default"                          # read at full whatever the file's own scale
+    assert s["max_epochs"] == 100 and s["train.early_stop_patience"] == 8       # params.yaml's full values
+    assert s["train.models.chen_bev.lr"] == 1.0e-4 and s["train.models.chen_bev.optimizer"] == "adam"
+    assert s["datasets.A.frames"] == 500 and s["world.resolution"] == 32 and s["seed"] == 2022
+    assert not any(k.startswith("train.models.polarnet") for k in s)               # another model's recipe
+    # what changes no result, the seed list (kept per run) and another source's settings are left out
+    assert not ({"train.num_workers", "train.parallel_runs", "world.workers", "preprocess.workers"} & set(s))
+    assert not any(k.startswith(("datasets.A.training.seeds", "datasets.A.carla", "datasets.A.authors")) for k in s)
+    assert settings_at(params, "chen_bev", "A", "default")["max_epochs"] == 1
+
+
+def test_changed_settings_name_what_todays_params_change() -> None:
+    run = _run()
+    assert changed_settings(run, load_params(ROOT / "params.yaml"), "full") == []
+    # the default's value of a key is not the record's business; full's is
+    assert changed_settings(run, _params(**{"train.early_stop_patience.default": 2}), "full") == []
+    assert changed_settings(run, _params(**{"train.models.chen_bev.lr": 3.0e-4}), "full") == ["train.models.chen_bev.lr"]
+    assert changed_settings(run, _params(**{"train.num_workers": 2}), "full") == []     # changes no result
+    assert changed_settings(run, _params(**{"datasets.A.frames.full": 800}), "full") == ["datasets.A.frames"]
+
+
+def test_the_sentence_says_what_each_recorded_run_shows() -> None:
+    params = load_params(ROOT / "params.yaml")
+    ev = evidence(_record(_run(), _run("polarnet", {"iou_ls": -0.01}), _run("gradnorm_segnet", {"mae_de": 0.1},
+                                                                            stop="max_epochs")), params)
+    text = recorded_sentence(ev, BASELINES, ["A"], "../benchmarks/records/full_plateau.json")
+    assert text.startswith("Trained to their plateau at `scale: full` (recorded in "
+                           "[full_plateau.json](../benchmarks/records/full_plateau.json): abc1234, a 2-core CPU; 1 seed")
+    assert ("Chen et al.: Set A, seed 0: trained to a plateau in 25 epochs (best 16), margin over the floor "
+            "BEVP +0.025: it learns at these settings") in text
+    assert "PolarNet: Set A, seed 0: trained to a plateau in 25 epochs (best 16), margin over the floor LS -0.010: " \
+           "it does not learn at these settings" in text
+    # a capped run answers nothing; a margin missing on one of the model's tasks is no "learns"
+    assert "GradNorm: Set A, seed 0: stopped by its cap after 25 epochs, not at a plateau" in text
+    assert "says nothing either way" in text
+    half = evidence(_record(_run("gradnorm_segnet", {"mae_de": 0.1})), params)
+    assert "DE +0.100: it does not learn" in recorded_sentence(half, BASELINES, ["A"], "x")
+    # only the models and datasets the report shows; nothing without a record
+    assert recorded_sentence(ev, ["chen_bev"], ["A"], "x").count("seed 0") == 1
+    assert recorded_sentence(ev, BASELINES, ["B"], "x") is None
+    assert recorded_sentence(None, BASELINES, ["A"], "x") is None
+    # a record of settings today's params no longer use answers for its own settings only
+    changed = evidence(_record(_run()), _params(**{"train.models.chen_bev.lr": 3.0e-4}))
+    assert ("(today's params would train this run differently: `train.models.chen_bev.lr`; the record answers "
+            "for its own settings only)") in recorded_sentence(changed, BASELINES, ["A"], "x")
+
+
+def test_the_index_quotes_the_record_below_the_capped_runs(tmp_path: Path) -> None:
+    build_tree(tmp_path, ("A",), n_frames=40, stop_reason="max_epochs", bases=bases_with(polarnet={"iou_ls": 0.0}))
+    ev = evidence(_record(_run(), _run("polarnet", {"iou_ls": 0.199})), load_params(ROOT / "params.yaml"))
+    build_reports(tmp_path, tmp_path / "reports", datasets=("A",), models=MODELS, scale_name="default",
+                  seeds=seed_map(), plateau=ev)
+    lines = (tmp_path / "reports/index.md").read_text().splitlines()
+    capped = next(i for i, line in enumerate(lines) if line.startswith("- Do the baselines learn at this scale?"))
+    assert "undecided whether it can learn" in lines[capped]
+    assert lines[capped + 1].startswith("- Trained to their plateau at `scale: full`")
+    assert "PolarNet: Set A, seed 0: trained to a plateau in 25 epochs (best 16), margin over the floor LS +0.199: " \
+           "it learns at these settings" in lines[capped + 1]
+
+
+def _finished_tree(root: Path, params_changes: dict) -> None:
+    """A repository copy at ``scale: full`` with one finished run of Chen et al. on set A, in the
+    documented layout: runs/A/chen_bev/seed0/summary.json, results/A/chen_bev/seed0/metrics.json."""
+    data = yaml.safe_load((ROOT / "params.yaml").read_text())
+    data.update({"scale": "full", "model_ids": ["chen_bev"], "baseline_seeds": {"default": [0], "full": [0],
+                                                                              "paper": [0]}, **params_changes})
+    root.mkdir(parents=True, exist_ok=True)
+    (root / "params.yaml").write_text(yaml.safe_dump(data, sort_keys=False))
+    run, res = root / "runs/A/chen_bev/seed0", root / "results/A/chen_bev/seed0"
+    run.mkdir(parents=True)
+    res.mkdir(parents=True)
+    (run / "summary.json").write_text(json.dumps({"epochs_run": 25, "best_epoch": 16, "max_epochs": 100,
+                                                  "stop_reason": "plateau", "train_seconds": 112.64}))
+    (res / "metrics.json").write_text(json.dumps({"iou_bevp": {"mean": 0.29, "var": 0.01},
+                                                  "floor_margin": {"iou_bevp": 0.0245}}))
+
+
+def _script(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, str(SCRIPT), *args], capture_output=True, text=True, cwd=ROOT)
+
+
+def test_the_script_records_a_finished_tree_and_the_report_reads_it(tmp_path: Path) -> None:
+    _finished_tree(tmp_path / "copy", {})
+    out = tmp_path / "record.json"
+    done = _script("--root", str(tmp_path / "copy"), "--commit", "abc1234", "--machine", "a CPU", "--out", str(out))
+    assert done.returncode == 0, done.stderr
+    rec = load_record(out)
+    assert (rec.scale, rec.commit, rec.machine) == ("full", "abc1234", "a CPU")
+    assert rec.command == "dvc repro train@A evaluate@A at scale: full"
+    [run] = rec.runs
+    assert (run.model, run.seed, run.epochs_run, run.best_epoch, run.stop_reason) == ("chen_bev", 0, 25, 16, "plateau")
+    assert run.floor_margin == {"iou_bevp": 0.0245} and run.train_seconds == 112.64
+    # the settings as today's params give them at full: nothing changed
+    assert changed_settings(run, load_params(ROOT / "params.yaml"), "full") == []
+
+
+def test_the_script_and_the_reader_refuse_bad_input_in_one_line(tmp_path: Path) -> None:
+    _finished_tree(tmp_path / "copy", {})
+    (tmp_path / "copy/runs/A/chen_bev/seed0/summary.json").write_text(json.dumps({"epochs_run": 25}))
+    out = tmp_path / "record.json"
+    done = _script("--root", str(tmp_path / "copy"), "--out", str(out))
+    assert done.returncode == 1 and not out.exists()
+    assert done.stderr.strip().splitlines() == [
+        f"error: {tmp_path}/copy/runs/A/chen_bev/seed0/summary.json: missing best_epoch, max_epochs, stop_reason, "
+        "train_seconds"]
+    done = _script("--root", str(tmp_path / "copy"), "--models", "nope", "--out", str(out))
+    assert done.returncode == 1 and "--models: ['nope']" in done.stderr and "Traceback" not in done.stderr
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"version": 1, "scale": "full", "runs": [{"dataset": "A", "model": "chen_bev"}]}))
+    with pytest.raises(ReportInputError, match=r"bad.json: runs\[0\].seed: expected int"):
+        load_record(bad)
+    bad.write_text("{")
+    with pytest.raises(ReportInputError, match="bad.json: not readable JSON"):
+        load_record(bad)
+    assert load_record(tmp_path / "none.json") is None
+
+
+def test_the_committed_record_reads_and_the_report_stage_depends_on_it() -> None:
+    """The record the report stage depends on (dvc.yaml) loads and holds a run of each baseline
+    trained to its plateau (whether today's params still train them that way, the report says)."""
+    rec = load_record(ROOT / "benchmarks/records/full_plateau.json")
+    assert rec is not None and rec.scale == "full"
+    assert {r.model for r in rec.runs if r.stop_reason == "plateau"} >= set(BASELINES)
+    dvc = yaml.safe_load((ROOT / "dvc.yaml").read_text())
+    assert "benchmarks/records/full_plateau.json" in dvc["stages"]["report"]["deps"]
