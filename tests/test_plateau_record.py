@@ -160,6 +160,19 @@ def test_the_script_and_the_reader_refuse_bad_input_in_one_line(tmp_path: Path) 
     bad.write_text(json.dumps({"version": 1, "scale": "full", "runs": [{"dataset": "A", "model": "chen_bev"}]}))
     with pytest.raises(ReportInputError, match=r"bad.json: runs\[0\].seed: expected int"):
         load_record(bad)
+    good = {"dataset": "A", "model": "chen_bev", "seed": 0, "epochs_run": 25, "best_epoch": 16, "max_epochs": 100,
+            "stop_reason": "plateau", "train_seconds": 1.0, "floor_margin": {"iou_bevp": 0.1}, "settings": {}}
+    bad.write_text(json.dumps({"version": 1, "scale": "full", "runs": [{**good, "model": "segformer"}]}))
+    with pytest.raises(ReportInputError, match=r"bad.json: runs\[0\].model: 'segformer' is none of"):
+        load_record(bad)
+    bad.write_text(json.dumps({"version": 1, "scale": "huge", "runs": [good]}))
+    with pytest.raises(ReportInputError, match=r"bad.json: scale: expected one of"):
+        load_record(bad)
+    # a recorded model today's params no longer have: its recipe key is what changed
+    data = yaml.safe_load((ROOT / "params.yaml").read_text())
+    data["model_ids"] = [m for m in data["model_ids"] if m != "chen_bev"]
+    del data["train"]["models"]["chen_bev"]
+    assert changed_settings(PlateauRun(**good), parse_params(data), "full") == ["train.models.chen_bev"]
     bad.write_text("{")
     with pytest.raises(ReportInputError, match="bad.json: not readable JSON"):
         load_record(bad)

@@ -20,20 +20,22 @@ from pathlib import Path
 from typing import Any, Mapping, Optional, Sequence
 
 from ..core.params_base import SCALES
-from ..core.catalog import MODELS, STOP_PLATEAU, metric_of
+from ..core.catalog import DATASETS, MODELS, STOP_PLATEAU, metric_of
 from ..core.layout import run_paths
 from .collect import ReportInputError
 from .schema import DATASET_LABEL, METRIC_TASK, ROW_LABEL
 
-__all__ = ["PlateauRun", "PlateauRecord", "PlateauEvidence", "evidence", "recorded_sentence", "RECORD_VERSION", "settings_at", "changed_settings", "record_runs",
-           "load_record"]
+__all__ = ["RECORD_VERSION", "PlateauRun", "PlateauRecord", "PlateauEvidence", "settings_at", "changed_settings",
+           "record_runs", "load_record", "evidence", "recorded_sentence"]
 
 RECORD_VERSION = 1
 
 #: Settings that change no result (the pipeline's promise: any worker, process or run count gives
-#: the same bytes) or that a record keeps apart (the seed of each run).
+#: the same bytes; which test frame a figure shows, how many predictions are saved).
 NEUTRAL_KEYS: tuple[str, ...] = ("world.workers", "preprocess.workers", "train.num_workers", "train.parallel_runs",
                                  "evaluate.figure_frame", "evaluate.save_predictions")
+
+_MISSING = object()
 
 #: The keys each run of a record must have, with their types.
 RUN_KEYS: dict[str, tuple[type, ...]] = {
@@ -123,11 +125,10 @@ def settings_at(params: Any, model: str, dataset: str, scale: str) -> dict[str, 
 def changed_settings(run: PlateauRun, params: Any, scale: str) -> list[str]:
     """The settings keys whose value in ``params`` at ``scale`` differs from ``run``'s (added or
     removed keys included), sorted; empty when today's params would train that run the same way."""
+    if run.model not in params.train.models:
+        return [f"train.models.{run.model}"]
     now = settings_at(params, run.model, run.dataset, scale)
     return sorted(k for k in set(now) | set(run.settings) if now.get(k, _MISSING) != run.settings.get(k, _MISSING))
-
-
-_MISSING = object()
 
 
 def _read_json(path: Path) -> Any:
@@ -188,6 +189,9 @@ def load_record(path: Path) -> Optional[PlateauRecord]:
                 raise ReportInputError(f"{path}: runs[{i}].{key}: expected {' or '.join(t.__name__ for t in types)}")
         if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in run["floor_margin"].values()):
             raise ReportInputError(f"{path}: runs[{i}].floor_margin: expected numbers")
+        for key, known in (("dataset", DATASETS), ("model", MODELS)):
+            if run[key] not in known:
+                raise ReportInputError(f"{path}: runs[{i}].{key}: {run[key]!r} is none of {sorted(known)}")
         runs.append(PlateauRun(**{k: run[k] for k in RUN_KEYS}))
     return PlateauRecord(str(path), data["scale"], str(data.get("commit", "")), str(data.get("machine", "")),
                          str(data.get("command", "")), tuple(runs))
@@ -212,7 +216,7 @@ def evidence(record: Optional[PlateauRecord], params: Any) -> Optional[PlateauEv
 
 def _run_text(run: PlateauRun, changed: Sequence[str]) -> str:
     """What one recorded run says: how it stopped, its margins on its model's tasks, the verdict."""
-    metrics = [metric_of(t) for t in MODELS[run.model].tasks] if run.model in MODELS else sorted(run.floor_margin)
+    metrics = [metric_of(t) for t in MODELS[run.model].tasks]
     margins = {m: run.floor_margin[m] for m in metrics if m in run.floor_margin}
     shown = ", ".join(f"{METRIC_TASK.get(m, m)} {v:+.3f}" for m, v in margins.items()) or "no margin recorded"
     where = f"{DATASET_LABEL.get(run.dataset, run.dataset)}, seed {run.seed}"
