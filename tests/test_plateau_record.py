@@ -174,7 +174,7 @@ def test_the_script_and_the_reader_refuse_bad_input_in_one_line(tmp_path: Path) 
     del data["train"]["models"]["chen_bev"]
     assert changed_settings(PlateauRun(**good), parse_params(data), "full") == ["train.models.chen_bev"]
     bad.write_text("{")
-    with pytest.raises(ReportInputError, match="bad.json: not readable JSON"):
+    with pytest.raises(ReportInputError, match="bad.json: not valid JSON"):
         load_record(bad)
     assert load_record(tmp_path / "none.json") is None
 

@@ -420,11 +420,12 @@ class Params(Strict):
         seeds = self.dataset(dataset).training.seeds if group == "compact" else self.baseline_seeds
         return list(seeds.at(self.scale))
 
-    def max_epochs_of(self, recipe: ModelRecipe, dataset: str) -> int:
+    def max_epochs_of(self, recipe: ModelRecipe, dataset: str, scale: Optional[ScaleName] = None) -> int:
         """The epoch cap of a run of ``recipe`` on ``dataset``: the recipe's own ``max_epochs`` where
-        it has one (a costly baseline), else ``datasets.<ds>.training.max_epochs``, at this scale."""
+        it has one (a costly baseline), else ``datasets.<ds>.training.max_epochs``, at ``scale``
+        (default: this file's ``scale``)."""
         cap = recipe.max_epochs if recipe.max_epochs is not None else self.dataset(dataset).training.max_epochs
-        return cap.at(self.scale)
+        return cap.at(scale or self.scale)
 
     def dataset(self, dataset: str) -> "SimDatasetParams | NuScenesParams":
         """The ``datasets.<ds>`` section."""

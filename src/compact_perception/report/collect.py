@@ -122,10 +122,12 @@ def _num(v: Any, where: str) -> float:
 
 
 def read_json(path: Path) -> dict[str, Any]:
-    """Parse a JSON object; errors name the file."""
+    """Parse a JSON object; errors (a missing file too) name the file."""
     try:
-        data = json.loads(Path(path).read_text())
-    except json.JSONDecodeError as err:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ReportInputError(f"{path}: missing") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
         raise ReportInputError(f"{path}: not valid JSON ({err})") from None
     if not isinstance(data, dict):
         raise ReportInputError(f"{path}: expected a JSON object")

@@ -276,11 +276,11 @@ def _learning_status(facts: Sequence[dict[str, Any]], failing: Sequence[Any]) ->
     return f"trained to a plateau and {where}" + ("" if failing else ": it learns")
 
 
-def _learning_sentence(parts: ReportParts) -> Optional[str]:
-    """Per baseline: whether its runs were trained to a plateau (``summary.json`` ``stop_reason``)
-    and, so, whether its place against the floor says it learns at this scale's settings."""
+def _learning_sentence(parts: ReportParts, baselines: Sequence[str]) -> Optional[str]:
+    """Per baseline of ``baselines``: whether its runs were trained to a plateau (``summary.json``
+    ``stop_reason``) and, so, whether its place against the floor says it learns at this scale's settings."""
     per_model = []
-    for m in [m for m in ROW_ORDER if m in MODELS and MODELS[m].group == "baseline"]:
+    for m in baselines:
         by_status: dict[str, list[str]] = {}
         for ds, gate in parts.gates.items():
             facts = parts.scales[ds].epochs.get(m) if ds in parts.scales else None
@@ -313,7 +313,7 @@ def _floor_section(parts: ReportParts) -> list[str]:
             out.append(f"- {_floor_sentence(ds, gate, models)}")
     baselines = [m for m in ROW_ORDER if m in MODELS and MODELS[m].group == "baseline"
                  and any(m in r for r in parts.results.values())]
-    lines = [_learning_sentence(parts),
+    lines = [_learning_sentence(parts, baselines),
              recorded_sentence(parts.plateau, baselines, list(parts.results), parts.plateau_link)]
     return out + [f"- {line}" for line in lines if line] + [""]
 

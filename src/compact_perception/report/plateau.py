@@ -14,7 +14,6 @@ differently, in which case the record answers for the old settings only.
 """
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping, Optional, Sequence
@@ -22,7 +21,7 @@ from typing import Any, Mapping, Optional, Sequence
 from ..core.params_base import SCALES
 from ..core.catalog import DATASETS, MODELS, STOP_PLATEAU, metric_of
 from ..core.layout import run_paths
-from .collect import ReportInputError
+from .collect import ReportInputError, read_json
 from .schema import DATASET_LABEL, METRIC_TASK, ROW_LABEL
 
 __all__ = ["RECORD_VERSION", "PlateauRun", "PlateauRecord", "PlateauEvidence", "settings_at", "changed_settings",
@@ -113,7 +112,7 @@ def settings_at(params: Any, model: str, dataset: str, scale: str) -> dict[str, 
         section.pop("authors_root", None)
         section.pop("authors_splits", None)
     out: dict[str, Any] = {"seed": params.seed,
-                           "max_epochs": recipe.get("max_epochs", section.get("training", {}).get("max_epochs"))}
+                           "max_epochs": params.max_epochs_of(params.train.models[model], dataset, scale)}
     _flatten(f"train.models.{model}", recipe, out)
     _flatten("train", _resolve(params.train.model_dump(mode="json", exclude={"models", "recipe"}), scale), out)
     for name in ("world", "preprocess", "evaluate"):
@@ -131,15 +130,6 @@ def changed_settings(run: PlateauRun, params: Any, scale: str) -> list[str]:
     return sorted(k for k in set(now) | set(run.settings) if now.get(k, _MISSING) != run.settings.get(k, _MISSING))
 
 
-def _read_json(path: Path) -> Any:
-    try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ReportInputError(f"{path}: missing") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise ReportInputError(f"{path}: not readable JSON ({err})") from None
-
-
 def record_runs(root: Path, params: Any, dataset: str, seeds: Mapping[str, Sequence[int]],
                 provenance: Mapping[str, str]) -> dict[str, Any]:
     """The record of the finished runs under ``root`` (``runs/<ds>/<model>/seed<k>/summary.json``
@@ -152,12 +142,12 @@ def record_runs(root: Path, params: Any, dataset: str, seeds: Mapping[str, Seque
         for seed in model_seeds:
             paths = run_paths(dataset, model, seed, root)
             summary_path = paths.run_dir / "summary.json"
-            summ, metrics = _read_json(summary_path), _read_json(paths.metrics_path)
-            margin = metrics.get("floor_margin") if isinstance(metrics, dict) else None
+            summ, metrics = read_json(summary_path), read_json(paths.metrics_path)
+            margin = metrics.get("floor_margin")
             if not isinstance(margin, dict):
                 raise ReportInputError(f"{paths.metrics_path}: no floor_margin (evaluate the run with its floor first)")
             missing = [k for k in ("epochs_run", "best_epoch", "max_epochs", "stop_reason", "train_seconds")
-                       if not isinstance(summ, dict) or summ.get(k) is None]
+                       if summ.get(k) is None]
             if missing:
                 raise ReportInputError(f"{summary_path}: missing {', '.join(missing)}")
             runs.append({"dataset": dataset, "model": model, "seed": int(seed),
@@ -174,8 +164,8 @@ def load_record(path: Path) -> Optional[PlateauRecord]:
     path = Path(path)
     if not path.is_file():
         return None
-    data = _read_json(path)
-    if not isinstance(data, dict) or data.get("version") != RECORD_VERSION:
+    data = read_json(path)
+    if data.get("version") != RECORD_VERSION:
         raise ReportInputError(f"{path}: version: expected {RECORD_VERSION}")
     if data.get("scale") not in SCALES:
         raise ReportInputError(f"{path}: scale: expected one of {list(SCALES)}")
