@@ -13,6 +13,7 @@ quoted that way: a current figure is a pointer to the generated file or a checke
 from __future__ import annotations
 
 import csv
+import hashlib
 import io
 import json
 import re
@@ -21,9 +22,15 @@ from pathlib import Path
 from typing import Any, Optional
 
 import pytest
+import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS: tuple[Path, ...] = (ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")))
+#: The history the docs leave out: its quotes of earlier commits are checked like the docs' own.
+CHANGELOG = ROOT / "CHANGELOG.md"
+QUOTING: tuple[Path, ...] = (*DOCS, CHANGELOG)
+#: The machine, software and wall time of the `make repro` behind the committed results.
+REPRO_RECORD = ROOT / "benchmarks" / "records" / "default_repro.json"
 QUOTE = re.compile(r"(?P<num>[-+]?\d+(?:\.\d+)?)<!-- quote (?:(?P<commit>[0-9a-f]{7,40}):)?(?P<path>[^#\s]+)"
                    r"#(?P<key>\S+) -->")
 #: A verdict count in prose: the number, an optional quote marker, the verdict.
@@ -57,7 +64,7 @@ def _lookup(text: str, key: str, path: str = "") -> Any:
         return _lookup_csv(text, key)
     value: Any = json.loads(text)
     for part in key.split("."):
-        value = value[part]
+        value = value[int(part)] if isinstance(value, list) else value[part]
     return value
 
 
@@ -88,13 +95,13 @@ def unmarked_counts(text: str) -> list[str]:
     return [m.group(0) for m in COUNT.finditer(text) if not m["marker"]]
 
 
-@pytest.mark.parametrize("doc", DOCS, ids=[p.name for p in DOCS])
+@pytest.mark.parametrize("doc", QUOTING, ids=[p.name for p in QUOTING])
 def test_every_quoted_result_equals_its_source(doc: Path) -> None:
     problems, _ = check_quotes(doc.read_text())
     assert not problems, f"{doc.name}: quoted results that differ from their source: {problems}"
 
 
-@pytest.mark.parametrize("doc", DOCS, ids=[p.name for p in DOCS])
+@pytest.mark.parametrize("doc", QUOTING, ids=[p.name for p in QUOTING])
 def test_verdict_counts_are_quoted_with_their_source(doc: Path) -> None:
     assert not unmarked_counts(doc.read_text()), f"{doc.name}: verdict counts without a source: " \
                                                   f"{unmarked_counts(doc.read_text())}"
@@ -104,8 +111,8 @@ def test_the_docs_quote_the_results_they_name() -> None:
     """The docs that quote results do so with sources (the quotes this test checks exist)."""
     if _git_show("e12ba38", "results/C/gradnorm_segnet/seed0/metrics.json") is None:
         pytest.skip("no git history here (shallow clone): the quotes of earlier commits cannot be read")
-    counts = {doc.name: check_quotes(doc.read_text())[1] for doc in DOCS}
-    assert counts["README.md"] >= 2 and counts["gradnorm_segnet.md"] >= 10
+    counts = {doc.name: check_quotes(doc.read_text())[1] for doc in QUOTING}
+    assert counts["README.md"] >= 2 and counts["results.md"] >= 20 and counts["CHANGELOG.md"] >= 10
     readme = (ROOT / "README.md").read_text()
     assert "0.104\n  here" not in readme and "26 reproduced" not in readme
 
@@ -136,3 +143,64 @@ def test_a_csv_quote_is_checked_against_its_row_and_column(tmp_path: Path) -> No
         ["1.88: t.csv#dataset=A,row_id=m1:tm is 1.8867"]
     assert check_quotes("1.9<!-- quote t.csv#row_id=m1:tm -->", tmp_path)[0] == \
         ["1.9: t.csv#row_id=m1:tm: no number there"]
+
+
+# ----------------------------------------------------------------------------- facts the docs state
+def _section(text: str, heading: str) -> str:
+    """The Markdown section under ``heading`` (to the next heading of the same or a higher level)."""
+    level = heading.split(" ", 1)[0]
+    body = text.split(heading + "\n", 1)[1]
+    return re.split(rf"^#{{1,{len(level)}}} ", body, maxsplit=1, flags=re.M)[0]
+
+
+
+
+
+
+
+
+
+
+
+
+
+
+#: A commit hash: 7 to 40 hex digits with at least one letter and one digit, not inside a number or word.
+COMMIT = re.compile(r"(?<![\w.])(?=[0-9a-f]*[a-f])(?=[0-9a-f]*\d)[0-9a-f]{7,40}(?![\w.])")
+ISSUE = re.compile(r"\bissues? #?\d+|\(#\d+\)", re.I)
+MONTHS = "January|February|March|April|May|June|July|August|September|October|November|December"
+DATE = re.compile(rf"\b20\d\d-\d\d-\d\d\b|\b\d{{1,2}} (?:{MONTHS}) 20\d\d\b|\b(?:{MONTHS}) \d{{1,2}}, 20\d\d\b")
+
+
+def history_in(text: str) -> list[str]:
+    """Commit hashes, issue numbers and dates in ``text``: history, which belongs in CHANGELOG.md."""
+    return [m.group(0) for pattern in (COMMIT, ISSUE, DATE) for m in pattern.finditer(text)]
+
+
+@pytest.mark.parametrize("doc", DOCS, ids=[p.name for p in DOCS])
+def test_the_docs_are_reference_not_history(doc: Path) -> None:
+    """README.md and docs/ describe the project as it is; what changed when, with its commits,
+    issues and dates, is CHANGELOG.md's. An all-digit hash is caught where git knows it."""
+    text = doc.read_text()
+    found = history_in(text)
+    for token in set(re.findall(r"(?<![\w.,])\d{7,12}(?![\w.,])", text)):
+        if _git_show(token, "dvc.yaml") is not None:
+            found.append(token)
+    assert not found, f"{doc.name}: history outside CHANGELOG.md: {found}"
+
+
+def test_each_docs_page_opens_with_what_the_reader_gets() -> None:
+    for doc in sorted((ROOT / "docs").glob("*.md")):
+        lines = doc.read_text().splitlines()
+        assert lines[0].startswith("# ") and lines[2].startswith("What you get here:"), doc.name
+
+
+def test_the_history_checker_finds_hashes_issues_and_dates() -> None:
+    assert history_in("the results of commit e12ba38 (issue 12, item 3), measured on 2026-12-02") == \
+        ["e12ba38", "issue 12", "2026-12-02"]
+    assert history_in("since Issues #24 and 4 December 2026; see a1f43b8d0") == ["a1f43b8d0", "Issues #24", "4 December 2026"]
+    # numbers, words and decimals are not hashes
+    assert history_in("5.278057624068129, 1000000 frames, 2521504 parameters, deadbeef, 0.2656729554137302") == []
+    changelog = CHANGELOG.read_text()
+    assert CHANGELOG.read_text().startswith("# Changelog") and "## [Unreleased]" in changelog
+    assert len(set(COMMIT.findall(changelog))) >= 20, "CHANGELOG.md holds the history with its commits"
