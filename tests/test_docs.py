@@ -306,3 +306,36 @@ def test_params_yaml_states_set_as_default_budget_as_its_values_make_it() -> Non
     comment = line.split("#", 1)[1]
     assert f"{steps} steps" in comment and f"batch {batch}" in comment and f"{train_frames} training frames" in comment
     assert not re.search(r"\b\d+ epochs\b", comment), f"params.yaml: an epoch count that is not the cap: {comment!r}"
+
+
+def test_every_carla_client_pin_the_docs_name_is_the_installable_one() -> None:
+    """A concrete `carla==<version>` in the docs or pyproject.toml is the extra's pin (the package
+    index has no client of most server versions: docs/carla.md says what to install instead)."""
+    pyproject = (ROOT / "pyproject.toml").read_text()
+    pin = re.search(r'carla = \["carla==([\d.]+)"\]', pyproject)[1]
+    for doc in (*DOCS, ROOT / "pyproject.toml"):
+        named = set(re.findall(r"carla==(\d[\d.]*\d)", doc.read_text()))
+        assert named <= {pin}, f"{doc.name} pins a CARLA client the project does not install: {named - {pin}}"
+
+
+def test_every_pointer_to_a_section_points_the_right_way() -> None:
+    """`"<Section>" below` and `[<Section>](#anchor) above` name a heading of the same page on
+    that side of the pointer."""
+    for doc in DOCS:
+        lines = doc.read_text().splitlines()
+        headings = {re.sub(r"^#+ ", "", ln).strip(): i for i, ln in enumerate(lines) if ln.startswith("#")}
+        anchors = {re.sub(r"[^\w\- ]", "", h).strip().lower().replace(" ", "-"): i for h, i in headings.items()}
+        for i, line in enumerate(lines):
+            for title, way in re.findall(r'"([^"]+)" (below|above)', line):
+                if title in headings:
+                    assert (headings[title] > i) == (way == "below"), f"{doc.name}:{i + 1}: {title!r} is not {way}"
+            for anchor, way in re.findall(r"\]\(#([\w-]+)\) (below|above)", line):
+                assert anchor in anchors, f"{doc.name}:{i + 1}: no section #{anchor}"
+                assert (anchors[anchor] > i) == (way == "below"), f"{doc.name}:{i + 1}: #{anchor} is not {way}"
+
+
+def test_the_readmes_full_scale_line_names_where_the_study_runs() -> None:
+    """`scale=full` runs the loss-balancing study on the datasets params.yaml names, not everywhere."""
+    study = yaml.safe_load((ROOT / "params.yaml").read_text())["study"]["datasets"]["full"]
+    line = next(ln for ln in (ROOT / "README.md").read_text().splitlines() if "dvc exp run -S scale=full" in ln)
+    assert f"the study on set {', '.join(study)}" in line, line
