@@ -20,12 +20,14 @@ pin_numeric_libraries()
 
 ROOT = Path(__file__).resolve().parents[1]
 # Collected first: under `pytest -n 2` (make test) one worker starts the tiny end-to-end pipeline,
-# the longest module, at once while the other runs the rest (a stable sort keeps every other order).
-FIRST_MODULES = ("test_pipeline_e2e.py",)
+# the longest module, at once and the other the DVC-remote runs, the second longest, before the
+# rest (a stable sort keeps every other order).
+FIRST_MODULES = ("test_pipeline_e2e.py", "test_remote.py")
 
 
 def pytest_collection_modifyitems(config, items):
-    items.sort(key=lambda item: item.path.name not in FIRST_MODULES)
+    items.sort(key=lambda item: FIRST_MODULES.index(item.path.name) if item.path.name in FIRST_MODULES
+               else len(FIRST_MODULES))
 
 
 @pytest.fixture(scope="session")

@@ -218,13 +218,21 @@ def test_every_params_key_the_prose_names_exists(doc: Path) -> None:
     assert not missing, f"{doc.name}: params keys that params.yaml does not have: {missing}"
 
 
+def paper_links() -> set[str]:
+    """The two links that may leave the repository: the paper's DOI and the authors' code, as
+    CITATION.cff names them."""
+    paper = yaml.safe_load((ROOT / "CITATION.cff").read_text())["references"][0]
+    return {f"https://doi.org/{paper['doi']}", paper["repository-code"]}
+
+
 @pytest.mark.parametrize("doc", DOCS, ids=[p.name for p in DOCS])
 def test_links_stay_inside_the_repository(doc: Path) -> None:
     text = doc.read_text()
     links = re.findall(r"\]\(([^)\s]+)\)", text)
-    external = [t for t in links if re.match(r"[a-z]+:", t)]
-    assert not external, f"{doc.name}: links that leave the repository: {external}"
-    broken = [t for t in links if not t.startswith("#") and not (doc.parent / t.split("#")[0]).exists()]
+    external = [t for t in links if re.match(r"[a-z]+:", t) and t not in paper_links()]
+    assert not external, f"{doc.name}: links that leave the repository (only the paper's and its code's may): {external}"
+    broken = [t for t in links if not t.startswith("#") and t not in paper_links()
+              and not (doc.parent / t.split("#")[0]).exists()]
     assert not broken, f"{doc.name}: links to nothing in the repository: {broken}"
     outside = [line for line in text.splitlines() if re.search(r"\.\./shared|/work/|/home/|/tmp/|\bSPEC\b", line)]
     assert not outside, f"{doc.name}: lines naming a path outside the repository or the specification: {outside}"
@@ -299,6 +307,13 @@ def test_the_architecture_module_table_matches_the_files() -> None:
         files |= {p.name for p in (PKG / sub).iterdir() if (p / "__init__.py").is_file()}
         missing = sorted(f for f in files if not re.search(rf"`{f}\b", rows[sub]))
         assert not missing, f"docs/ARCHITECTURE.md's `{sub}/` row leaves out {missing}"
+
+
+def test_the_readme_links_the_paper_and_the_authors_code() -> None:
+    """A reader finds the paper (its DOI) and the authors' code from the README's first lines."""
+    head = "\n".join((ROOT / "README.md").read_text().splitlines()[:12])
+    linked = set(re.findall(r"\]\(([^)\s]+)\)", head))
+    assert paper_links() <= linked, f"the README's opening does not link {sorted(paper_links() - linked)}"
 
 
 def test_license_and_citation_match_the_readme() -> None:
