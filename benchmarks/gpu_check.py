@@ -8,19 +8,25 @@ On a CUDA device (the default) it runs, at the paper's 128 px:
   fp16 (fp16 with the GradScaler), through the project's own step
   (:func:`compact_perception.training.epoch.train_step` on a run built by the training loop's
   setup step); compact_15l_mgn_authors (MGN, ``authors_mode: true``) does its weight update under
-  autocast on the last step and the check asserts the weights moved and stay finite;
+  autocast on the last step and the check asserts the weights stay finite and moved, unless the
+  GradScaler skipped that step (the update is then dropped with it, and the row says so);
 - ``pipeline.train``: the real stage on a tiny synthetic cache (tests/synthetic.py) with a params
   file in a temporary folder: one epoch interrupted, then ``python -m pipeline.train`` resumes it,
-  finishes, and writes best.pt, last.pt and the ONNX export's summary (checked);
-- ``ddp``: one ``torchrun --standalone --nproc_per_node=1`` training step with the process group on
-  nccl (gloo on a CPU) and the gradient / weight / scalar all-reduces of training/distributed.py;
-- ``fps``: Table III's batch-1 inference FPS with device synchronisation
+  finishes, and writes best.pt, last.pt and the ONNX export's summary (checked); the same run
+  uninterrupted beside it, and the two runs' networks compared (equal bytes, or the largest
+  difference, which the GPU determinism policy allows: docs/gpu.md);
+- ``ddp``: ``torchrun --standalone --nproc_per_node=1`` training steps with the process group on
+  nccl (gloo on a CPU), one per loss weighting of the registry, through the gradient / weight /
+  scalar all-reduces of training/distributed.py;
+- ``fps``: Table III's batch-1 inference FPS with device synchronisation, as the benchmark stage
+  measures it (:func:`compact_perception.efficiency.measure_model`) and for each variant
   (:func:`compact_perception.timing.benchmark_variants`: fp32, fp16, bf16, channels-last, CUDA graphs).
 
 It prints one table (check, device, precision, seconds, result) and exits 1 if any check failed.
-``--device cpu --size 32`` runs the same code on a CPU (one step each, gloo), printing
-``skipped: needs CUDA`` for what a CPU cannot run (fp16 with the GradScaler); the slow test
-suite runs it so (tests/test_gpu_check.py).
+``--device cpu --size 32`` runs the same code on a CPU (one step each, gloo); a precision the CPU
+only emulates (fp16 always, bf16 without AMX/AVX-512-BF16) trains the two MGN models, whose weight
+update under autocast is what matters, and skips the others (slow there); the slow test suite
+runs it so (tests/test_gpu_check.py).
 """
 from __future__ import annotations
 
@@ -109,11 +115,14 @@ def params_for(device: torch.device, precision: str, batch: int):
     return params.model_copy(update={"train": train})
 
 
-def build_run(params, model_id: str, device: torch.device, cache: Path, out: Path, dist: ddp.Dist | None = None):
-    """A run as the training loop builds it (train._setup): model, weighting, optimiser, scaler."""
+def build_run(params, model_id: str, device: torch.device, cache: Path, out: Path, dist: ddp.Dist | None = None,
+              arm: str | None = None):
+    """A run as the training loop builds it (train._setup): model, weighting, optimiser, scaler;
+    ``arm``: a study arm's recipe on the model's network."""
     from compact_perception.core.cache import read_meta
+    from compact_perception.plan import recipe_of
 
-    recipe = params.train.models[model_id]
+    recipe = recipe_of(params, model_id, arm)
     spec = RunSpec(params, "A", model_id, recipe, cache, RunPaths.under(out), device, dist or ddp.Dist(), 0,
                    "gpu-check", params.train.batch_size, len(read_meta(cache)["seg_classes"]), torch.float32, None,
                    False, False)
@@ -132,34 +141,37 @@ def steps_of(run, batch: dict, steps: int) -> str:
     MGN updates its weights there); checks finite losses and moved parameters."""
     before = [p.detach().clone() for p in run.model.parameters()]
     w0 = run.weighting.w.detach().clone() if hasattr(run.weighting, "w") else None
-    values = {}
+    values, updates0, skipped = {}, getattr(run.weighting, "n_updates", 0), 0
     for step in range(steps):
+        scale = run.scaler.get_scale() if run.scaler.is_enabled() else 1.0
         values, _ = train_step(run, batch, step, steps)
+        skipped += run.scaler.is_enabled() and run.scaler.get_scale() < scale
     _expect(math.isfinite(values["loss_total"]), f"loss_total {values['loss_total']}")
     moved = sum(int(not torch.equal(a, p.detach())) for a, p in zip(before, run.model.parameters()))
-    _expect(moved > 0, "no parameter changed")
+    _expect(moved > 0 or skipped == steps, "no parameter changed")
     out = f"loss {values['loss_total']:.4g}, {moved} tensors updated"
     if run.scaler.is_enabled():
-        out += f", GradScaler scale {run.scaler.get_scale():.0f}"
+        out += f", GradScaler scale {run.scaler.get_scale():.0f} ({skipped} of {steps} steps skipped)"
     if run.spec.recipe.weighting == "mgn":
         w = run.weighting.w.detach().float()
         _expect(bool(torch.isfinite(w).all()), f"MGN weights not finite: {w.tolist()}")
-        _expect(not torch.equal(w, w0.float()), "MGN weights did not move on the epoch's last step")
-        out += ", MGN w " + "/".join(f"{x:.3f}" for x in w.tolist())
+        if run.weighting.n_updates > updates0:
+            _expect(not torch.equal(w, w0.float()), "MGN weights did not move on the epoch's last step")
+            out += ", MGN w " + "/".join(f"{x:.3f}" for x in w.tolist())
+        else:  # the GradScaler skipped the epoch's last step: its weight update went with it
+            _expect(run.scaler.is_enabled() and torch.equal(w, w0.float()), "MGN weights changed without an update")
+            out += ", MGN update dropped with the step the GradScaler skipped"
     return out
 
 
 def check_train_steps(rows, device, cache, args) -> None:
     for precision in PRECISIONS:
-        if precision == "fp16" and device.type != "cuda":
-            skip(rows, "train_step (every model)", device, precision)
-            continue
         params = params_for(device, precision, args.batch)
-        emulated = precision == "bf16" and device.type == "cpu" and not cpu_has_native_bf16()
+        emulated = device.type == "cpu" and (precision == "fp16" or precision == "bf16" and not cpu_has_native_bf16())
         for model_id in catalog.model_ids():
             name = f"train_step {model_id}"
-            if emulated and model_id != "compact_15l_mgn_authors":  # MGN under autocast: the one that matters
-                skip(rows, name, device, precision, "skipped: emulated bf16 on this CPU (slow); runs on CUDA")
+            if emulated and params.train.models[model_id].weighting != "mgn":  # MGN's update: what matters there
+                skip(rows, name, device, precision, f"skipped: emulated {precision} on this CPU (slow); runs on CUDA")
                 continue
             recipe = params.train.models[model_id]
             if recipe.weighting == "mgn" and (recipe.mgn or {}).get("authors_mode"):
@@ -178,6 +190,7 @@ def check_train_steps(rows, device, cache, args) -> None:
 INTERRUPTED_RUN = textwrap.dedent("""
     import sys
     from pathlib import Path
+    import pipeline  # noqa: F401  the stage package's numeric pins, as the resuming stage has them
     from compact_perception.core.config import load_params
     from compact_perception.plan import recipe_of
     from compact_perception.training.train import train_run
@@ -190,6 +203,14 @@ INTERRUPTED_RUN = textwrap.dedent("""
         sys.exit(0)
     sys.exit("error: the run was not interrupted")
 """)
+
+
+def network_difference(a: Path, b: Path) -> float:
+    """The largest absolute difference between two checkpoints' networks (0.0: equal values)."""
+    sa = torch.load(a, map_location="cpu", weights_only=True)["model"]
+    sb = torch.load(b, map_location="cpu", weights_only=True)["model"]
+    _expect(sa.keys() == sb.keys(), f"{a} and {b} hold different networks")
+    return max((float((sa[k].double() - sb[k].double()).abs().max()) for k in sa if sa[k].numel()), default=0.0)
 
 
 def write_params(path: Path, device: torch.device, size: int, precision: str) -> Path:
@@ -221,8 +242,9 @@ def check_pipeline_train(rows, device, cache, work: Path, args) -> None:
         _run([sys.executable, "-c", INTERRUPTED_RUN, str(params), str(cache), str(out)], args.timeout)
         _expect((out / "last.pt").exists() and (out / "best.pt").exists(), "no last.pt/best.pt after epoch 1")
         _expect(not (out / "summary.json").exists(), "summary.json written by an interrupted run")
-        proc = _run([sys.executable, "-m", "pipeline.train", "--dataset", "A", "--model", "compact_15l", "--seed", "0",
-                     "--params", str(params), "--cache", str(cache), "--out", str(out)], args.timeout)
+        stage = [sys.executable, "-m", "pipeline.train", "--dataset", "A", "--model", "compact_15l", "--seed", "0",
+                 "--params", str(params), "--cache", str(cache), "--out", str(out)]
+        proc = _run(stage, args.timeout)
         _expect("resuming after epoch 1" in proc.stderr + proc.stdout, "the stage did not resume after epoch 1")
         summary = json.loads((out / "summary.json").read_text())
         _expect(summary["epochs_run"] == 2, f"epochs_run {summary['epochs_run']}")
@@ -230,8 +252,15 @@ def check_pipeline_train(rows, device, cache, work: Path, args) -> None:
         _expect((out / onnx.get("file", "model.onnx")).exists(), "no ONNX export in the summary / folder")
         diff = float(onnx["max_abs_diff"])
         _expect(math.isfinite(diff) and diff < 1e-2, f"ONNX max abs diff {diff}")
+        whole = work / "uninterrupted"  # the stage's own process (its numeric pins), as the resumed epoch had
+        _run([*stage[:-1], str(whole)], args.timeout)
+        same = (out / "last.pt").read_bytes() == (whole / "last.pt").read_bytes()  # holds the timings: rarely
+        gap = network_difference(out / "last.pt", whole / "last.pt")
+        _expect(device.type == "cuda" or gap == 0.0, f"resumed network differs from the uninterrupted one by {gap:.3g}")
+        versus = "resumed = uninterrupted network (equal values)" if gap == 0.0 else \
+            f"resumed vs uninterrupted network: max|diff| {gap:.2e}"
         return (f"resumed after epoch 1, 2 epochs, best epoch {summary['best_epoch'] + 1}, best.pt+last.pt, "
-                f"ONNX max|diff| {diff:.1e}")
+                f"ONNX max|diff| {diff:.1e}; {versus}{' (same last.pt bytes)' if same else ''}")
 
     run_check(rows, "pipeline.train (resume, ONNX)", device, precision, fn)
 
@@ -245,9 +274,19 @@ class _OneRankGroup(ddp.Dist):
         return True
 
 
+#: One run per loss weighting of the registry (model, study arm): the compact 15L network where the
+#: method is a study arm, so that no VGG16 SegNet is needed for GradNorm.
+WEIGHTING_RUNS = {
+    "static": ("compact_15l", None), "none": ("polarnet", None), "mgn": ("compact_15l_mgn", None),
+    "mgn (authors)": ("compact_15l_mgn_authors", None), "gradnorm": ("compact_15l", "gradnorm"),
+    "uw": ("compact_15l", "uw"), "dwa": ("compact_15l", "dwa"), "pcgrad": ("compact_15l", "pcgrad"),
+    "cagrad": ("compact_15l", "cagrad"), "single": ("compact_15l", "single_ss"),
+}
+
+
 def ddp_worker(args) -> None:
-    """Inside torchrun: join the group (nccl on CUDA, gloo on a CPU), one training step through
-    the data-parallel path, then an all-reduce of the scalars."""
+    """Inside torchrun: join the group (nccl on CUDA, gloo on a CPU), one training step per loss
+    weighting through the data-parallel path, then an all-reduce of the scalars."""
     import torch.distributed as dist
 
     device = torch.device(args.device)
@@ -259,13 +298,16 @@ def ddp_worker(args) -> None:
     dist.init_process_group(backend=backend)
     group = _OneRankGroup(rank=rank, world_size=world, local_rank=local)
     params = params_for(device, "fp32", args.batch)
-    with tempfile.TemporaryDirectory() as tmp:
-        run = build_run(params, "compact_15l_mgn_authors", device, Path(args.cache), Path(tmp), group)
-        text = steps_of(run, one_batch(Path(args.cache), "compact_15l_mgn_authors", args.batch), 1)
+    done = []
+    for name, (model_id, arm) in WEIGHTING_RUNS.items():
+        with tempfile.TemporaryDirectory() as tmp:
+            run = build_run(params, model_id, device, Path(args.cache), Path(tmp), group, arm)
+            steps_of(run, one_batch(Path(args.cache), model_id, args.batch), 2)
+        done.append(name)
     mean = ddp.average_scalars({"x": 2.0}, group)["x"]
     ddp.barrier(group)
     _expect(abs(mean - 2.0) < 1e-9, f"all-reduce mean {mean}")
-    print(f"ddp ok: backend {dist.get_backend()}, world {world}, {text}")
+    print(f"ddp ok: backend {dist.get_backend()}, world {world}, {len(done)} weightings: {', '.join(done)}")
     ddp.shutdown(group)
 
 
@@ -278,15 +320,15 @@ def check_ddp(rows, device, cache, args) -> None:
                      "--batch", str(args.batch)], args.timeout)
         line = next((ln for ln in proc.stdout.splitlines() if ln.startswith("ddp ok")), None)
         _expect(line is not None, "the torchrun worker printed no result")
-        return line.split(": ", 1)[1].split(", loss")[0]
+        return line.split(": ", 1)[1]
 
-    run_check(rows, f"torchrun DDP step ({backend})", device, "fp32", fn)
+    run_check(rows, f"torchrun DDP steps ({backend}, every weighting)", device, "fp32", fn)
 
 
 # ----------------------------------------------------------------------------- Table III FPS
 def check_fps(rows, device, args) -> None:
     from compact_perception.models import DATASET_SPECS, build_model
-    from compact_perception.efficiency import dummy_batch
+    from compact_perception.efficiency import dummy_batch, measure_model
     from compact_perception.timing import benchmark_variants, default_variants
 
     params = load_params(ROOT / "params.yaml")
@@ -297,6 +339,8 @@ def check_fps(rows, device, args) -> None:
         torch.manual_seed(0)
         model = build_model("compact_15l", "A").eval()
         batch = dummy_batch(model, n_seg=spec.n_seg, has_dvs=spec.has_dvs, resolution=args.size, device=device)
+        stage = measure_model(model, batch, device, warmup, runs)  # what the benchmark stage records
+        _expect(stage["fps"] > 0 and math.isfinite(stage["fps"]), f"benchmark stage FPS {stage['fps']}")
         results = benchmark_variants(model, batch, device, default_variants(device), warmup, runs)
         bad = [r["name"] for r in results if "error" in r]
         good = [r for r in results if "fps" in r]
@@ -304,8 +348,8 @@ def check_fps(rows, device, args) -> None:
         _expect(not bad, f"variants failed: {', '.join(bad)}")
         best = max(good, key=lambda r: r["fps"])
         fp32 = next(r for r in good if r["name"] == "fp32")
-        return (f"compact_15l batch 1: fp32 {fp32['fps']:.0f} FPS, best {best['name']} {best['fps']:.0f} FPS "
-                f"({len(good)} variants, synchronised, median of {runs})")
+        return (f"compact_15l batch 1: benchmark stage {stage['fps']:.0f} FPS, fp32 {fp32['fps']:.0f} FPS, best "
+                f"{best['name']} {best['fps']:.0f} FPS ({len(good)} variants, synchronised, median of {runs})")
 
     run_check(rows, "Table III FPS", device, "all", fn)
 

@@ -67,10 +67,11 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv)
     params = start(args.params)
     try:
+        compiled = params.train.compile
         for m in params.model_ids:  # every recipe's and arm's weighting settings, before anything is written
-            weighting_settings(recipe_of(params, m, None), args.params)
+            weighting_settings(recipe_of(params, m, None), args.params, compiled=compiled)
         for arm in params.study.arm_ids:
-            weighting_settings(recipe_of(params, params.study.base_model, arm), args.params)
+            weighting_settings(recipe_of(params, params.study.base_model, arm), args.params, compiled=compiled)
         runs = _selected(params, args)
         cache = str(args.cache or Path("data/cache") / args.dataset)
         alone = len(runs) == 1

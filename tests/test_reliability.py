@@ -107,7 +107,7 @@ def test_every_checkpoint_reader_refuses_a_crafted_pickle(tmp_path, reader):
 
     marker = tmp_path / "marker"
     path = _crafted(tmp_path / "best.pt", marker, digest="d", epoch=0)
-    call = {"load_resumable": lambda: checkpoint.load_resumable(path, "d", torch.device("cpu")),
+    call = {"load_resumable": lambda: checkpoint.load_resumable(path, "d"),
             "mark_finished": lambda: checkpoint.mark_finished(path),
             "read_checkpoint": lambda: checkpoint.read_checkpoint(path)}[reader]
     with pytest.raises(RunError, match=re.escape(f"{path}: unreadable checkpoint (it holds more than")):
@@ -495,7 +495,7 @@ def test_no_checkpoint_error_advises_an_unsafe_load(tmp_path, reader):
     path = _crafted(tmp_path / "best.pt", marker, digest="d", epoch=0)
     call = {"read_best": lambda: read_best("A", MODEL, tmp_path),
             "read_checkpoint": lambda: checkpoint.read_checkpoint(path),
-            "load_resumable": lambda: checkpoint.load_resumable(path, "d", torch.device("cpu")),
+            "load_resumable": lambda: checkpoint.load_resumable(path, "d"),
             "mark_finished": lambda: checkpoint.mark_finished(path)}[reader]
     with pytest.raises(RunError) as exc:
         call()

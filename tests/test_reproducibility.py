@@ -126,7 +126,7 @@ def test_digest_covers_every_result_changing_train_param(params_dict):
     base = parse_params(params_dict)
     d0 = run_digest(base, "A", MODEL, 1, "data", 1)
     changes = {
-        ("num_threads",): 2, ("precision",): "bf16", ("channels_last",): False, ("compile",): True, ("batch_size",): 3, ("plateau_patience",): 7,
+        ("num_threads",): 2, ("precision",): "bf16", ("channels_last",): False, ("compile",): True, ("deterministic",): False, ("tf32",): True, ("batch_size",): 3, ("plateau_patience",): 7,
         ("early_stop_patience", "default"): 9, ("models", MODEL, "lr"): 0.05, ("models", MODEL, "momentum"): 0.5,
     }
     for path, value in changes.items():

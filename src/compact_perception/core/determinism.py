@@ -88,6 +88,36 @@ def set_threads(n: int) -> None:
         torch.set_num_threads(int(n))
 
 
+#: cuBLAS's workspace settings under which its GEMMs are deterministic (CUDA 10.2 and later).
+CUBLAS_DETERMINISTIC = (":4096:8", ":16:8")
+
+
+def set_determinism(device: "torch.device", deterministic: bool, tf32: bool) -> None:
+    """The determinism policy of a training run (``train.deterministic``, ``train.tf32``; docs/gpu.md).
+
+    - ``tf32`` false (the default): float32 matrix products and convolutions on a GPU run in full
+      float32, not TF32 (PyTorch's default for cuDNN on Ampere and later); no effect on a CPU.
+    - ``deterministic`` true (the default): every op that has a deterministic kernel uses it
+      (``torch.use_deterministic_algorithms``), cuDNN picks deterministic algorithms and does not
+      benchmark, and on CUDA ``CUBLAS_WORKSPACE_CONFIG`` is set (before the first cuBLAS call of
+      the process, which this precedes) so cuBLAS's GEMMs are repeatable. The ops PyTorch has no
+      deterministic CUDA kernel for (the bilinear upsampling's and max-unpooling's backward, which
+      every network here uses) still run, with PyTorch's warning: a CUDA run is then repeatable
+      up to their atomic-add order, not bit for bit. On a CPU every kernel used is deterministic.
+    - ``deterministic`` false: cuDNN benchmarks and picks its fastest algorithms (a GPU run's bytes
+      then vary between runs).
+    """
+    import torch
+
+    if device.type == "cuda" and deterministic and os.environ.get("CUBLAS_WORKSPACE_CONFIG") not in CUBLAS_DETERMINISTIC:
+        os.environ["CUBLAS_WORKSPACE_CONFIG"] = CUBLAS_DETERMINISTIC[0]
+    torch.backends.cuda.matmul.allow_tf32 = bool(tf32)
+    torch.backends.cudnn.allow_tf32 = bool(tf32)
+    torch.backends.cudnn.deterministic = bool(deterministic)
+    torch.backends.cudnn.benchmark = not deterministic
+    torch.use_deterministic_algorithms(bool(deterministic), warn_only=True)
+
+
 def resolve_device(pref: str) -> "torch.device":
     """``train.device``: ``cuda`` (an error without one), ``cpu``, or ``auto`` (CUDA when present)."""
     import torch

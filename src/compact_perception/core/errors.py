@@ -13,6 +13,11 @@ class RunError(RuntimeError):
     """A run cannot start or cannot save (bad input, a full disk); the message names the file or key."""
 
 
+class NonFinite(ArithmeticError):
+    """A loss, score or loss weight that is not a finite number: the run has diverged (e.g. a too
+    large lr). The training loop turns it into a :class:`RunError` naming the run and the epoch."""
+
+
 def os_error_line(err: OSError, where: object, doing: str = "write") -> str:
     """One line for a failed read or write (a full disk, a read-only folder): the file the OS
     names, else ``where``, and the OS's reason (``No space left on device``). An OSError raised

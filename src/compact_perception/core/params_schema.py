@@ -267,6 +267,10 @@ class TrainParams(Strict):
                     "natively (precision.resolve_precision); anything but fp32 lifts the CPU kernel pins")
     channels_last: bool = Field(description="NHWC memory format for the convolutions")
     compile: bool = Field(description="torch.compile the forward (falls back to eager with one warning)")
+    deterministic: bool = Field(description="deterministic kernels where they exist, cuDNN without benchmarking, "
+                                "cuBLAS's deterministic workspace (determinism.set_determinism; docs/gpu.md)")
+    tf32: bool = Field(description="let a GPU run fp32 matrix products and convolutions in TF32 (faster, fewer "
+                       "mantissa bits); false keeps fp32 fp32")
     recipe: dict[str, Any] = Field(description="the base recipe: every key of a model's recipe that "
                                    "train.models.<id> does not set")
     models: dict[str, ModelRecipe] = Field(description="model id -> what its recipe changes in `recipe` (null "

@@ -2,6 +2,14 @@
 (everything needed to resume bit-identically after the last finished epoch), written atomically
 by rank 0, read back on a restart, and what a failed write leaves behind.
 
+Every checkpoint is read onto the CPU, whatever device the run uses: ``load_state_dict`` moves each
+tensor to where its module or optimiser lives, and the RNG states stay the CPU byte tensors
+``torch.set_rng_state`` takes, so a run saved on one device resumes on another (a CPU run on a GPU
+and the reverse: it continues, but its bytes are then those of neither device's uninterrupted run).
+``last.pt`` also holds the CUDA generator of the run's GPU and the float16 GradScaler's state, so a
+resumed GPU run continues the same sequence; a checkpoint of another resolved precision (``auto``
+resolves per device) is refused in one line.
+
 Every checkpoint is read with ``weights_only=True`` (tensors and plain containers): ``runs/`` is a
 DVC output that can come from a shared cache or another checkout, and unpickling anything else
 can run code. Checkpoints are written atomically, so one that does not read back is damaged, not
@@ -68,6 +76,8 @@ def save_last(run: RunState, epoch: int) -> None:
         "best_score": run.best_score, "best_epoch": run.best_epoch, "lr": run.lr,
         "torch_rng": torch.get_rng_state(), "stopped_early": run.stopped_early,
         "elapsed_s": run.elapsed(), "finished": False, "untrained_score": run.untrained_score,
+        "device": run.spec.device.type, "precision": run.precision, "scaler": run.scaler.state_dict(),
+        "cuda_rng": torch.cuda.get_rng_state(run.spec.device) if run.spec.device.type == "cuda" else None,
     }, run.spec.paths.last)
 
 
@@ -77,12 +87,11 @@ def _reason(err: Exception) -> str:
     return checkpoint_load_reason(err)
 
 
-def read_checkpoint(path: Path, device: torch.device | str = "cpu",
-                    remedy: str = "delete it to retrain from scratch") -> dict:
-    """The checkpoint at ``path``, read with ``weights_only=True``; :class:`RunError` naming the
-    file (and ``remedy``) when it does not read back as a mapping."""
+def read_checkpoint(path: Path, remedy: str = "delete it to retrain from scratch") -> dict:
+    """The checkpoint at ``path``, read onto the CPU with ``weights_only=True``; :class:`RunError`
+    naming the file (and ``remedy``) when it does not read back as a mapping."""
     try:
-        state = torch.load(path, map_location=device, weights_only=True)
+        state = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as err:  # torch raises RuntimeError, EOFError, UnpicklingError, ... on damage
         raise RunError(f"{path}: unreadable checkpoint ({_reason(err)}); {remedy}") from None
     if not isinstance(state, dict):
@@ -90,14 +99,14 @@ def read_checkpoint(path: Path, device: torch.device | str = "cpu",
     return state
 
 
-def load_resumable(path: Path, digest: str, device: torch.device) -> Optional[dict]:
+def load_resumable(path: Path, digest: str) -> Optional[dict]:
     """The checkpoint at ``path`` when it belongs to this run (the same ``digest``: code, params,
     data); ``None`` (start afresh) when there is none or it is of another run. An unreadable one is
     an error (:func:`read_checkpoint`): it was written atomically, so it is damaged, and starting
     afresh would delete a finished run's results."""
     if not path.exists():
         return None
-    state = read_checkpoint(path, device)
+    state = read_checkpoint(path)
     if state.get("digest") != digest:
         log.info("%s: the checkpoint is of other code, params or data; starting afresh", path.parent)
         return None
@@ -105,7 +114,9 @@ def load_resumable(path: Path, digest: str, device: torch.device) -> Optional[di
 
 
 def restore(run: RunState, state: dict) -> None:
-    """Put a ``last.pt`` state (:func:`save_last`) back into ``run``: it continues after that epoch."""
+    """Put a ``last.pt`` state (:func:`save_last`, read on the CPU) back into ``run``: it continues
+    after that epoch, on the run's device."""
+    _check_precision(run, state)
     run.model.load_state_dict(state["model"])
     run.optimizer.load_state_dict(state["optimizer"])
     run.weighting.load_state_dict(state["weighting"])
@@ -115,7 +126,31 @@ def restore(run: RunState, state: dict) -> None:
     run.best_score, run.best_epoch, run.lr = state["best_score"], state["best_epoch"], state["lr"]
     run.untrained_score = state.get("untrained_score")
     torch.set_rng_state(state["torch_rng"])
+    if state.get("scaler"):
+        run.scaler.load_state_dict(state["scaler"])
+    _restore_cuda_rng(run, state)
     run.elapsed_before, run.stopped_early = state["elapsed_s"], bool(state.get("stopped_early"))
+
+
+def _check_precision(run: RunState, state: dict) -> None:
+    """A checkpoint trained in another precision (``train.precision: auto`` resolves per device:
+    bf16 on a recent GPU, fp32 on most CPUs) is refused: one run in two precisions is neither."""
+    saved = state.get("precision", "fp32")
+    if saved != run.precision:
+        raise RunError(f"{run.spec.paths.last}: trained in {saved} on {state.get('device', 'cpu')}, this process "
+                       f"resolves train.precision to {run.precision} on {run.spec.device.type}; set train.precision "
+                       f"to {saved} to continue it, or delete the file to retrain from scratch")
+
+
+def _restore_cuda_rng(run: RunState, state: dict) -> None:
+    """The CUDA generator of the run's GPU as saved; a run saved on another device type keeps the
+    generator its seed gave it, and says so."""
+    saved_on, here = state.get("device", "cpu"), run.spec.device.type
+    if here == "cuda" and state.get("cuda_rng") is not None:
+        torch.cuda.set_rng_state(state["cuda_rng"], run.spec.device)
+    if saved_on != here:
+        log.warning("%s: saved on %s, resuming on %s: the run continues, with neither device's bytes",
+                    run.spec.paths.out_dir, saved_on, here)
 
 
 def mark_finished(path: Path) -> None:

@@ -44,15 +44,40 @@ def init_from_env(device_type: str) -> Dist:
     return Dist(rank=rank, world_size=world_size, local_rank=local_rank)
 
 
+def group_device(d: Dist) -> torch.device:
+    """The device the process group reduces on: this rank's GPU under nccl (which refuses CPU
+    tensors), the CPU under gloo. Every collective here stages its tensor there and back, so a
+    caller may hand it a tensor on any device (a loss weighting's CPU float64 weights, say)."""
+    if dist.get_backend() == "nccl":
+        return torch.device("cuda", torch.cuda.current_device())
+    return torch.device("cpu")
+
+
+def _from_group(staged: torch.Tensor, like: torch.Tensor) -> torch.Tensor:
+    """A reduced tensor back on ``like``'s device and in its dtype."""
+    return staged.to(device=like.device, dtype=like.dtype)
+
+
+def _sum_over_ranks(t: torch.Tensor, d: Dist) -> torch.Tensor:
+    """The sum of ``t`` over ranks, reduced on the group's device (:func:`group_device`) and
+    returned as a new tensor on ``t``'s device."""
+    staged = t.detach().to(group_device(d), copy=True)
+    dist.all_reduce(staged, op=dist.ReduceOp.SUM)
+    return _from_group(staged, t)
+
+
 def average_gradients(params: list[torch.nn.Parameter], d: Dist) -> None:
-    """All-reduce and average ``.grad`` of ``params`` in one flat buffer."""
+    """All-reduce and average ``.grad`` of ``params`` in one flat buffer.
+
+    Called before the GradScaler unscales (training/epoch.py): a rank's inf or nan then reaches
+    every rank's mean gradient, so every rank's scaler skips the same step and their loss scales
+    stay equal."""
     if not d.enabled:
         return
     grads = [p.grad for p in params if p.grad is not None]
     if not grads:
         return
-    flat = torch.cat([g.reshape(-1) for g in grads])
-    dist.all_reduce(flat, op=dist.ReduceOp.SUM)
+    flat = _sum_over_ranks(torch.cat([g.reshape(-1) for g in grads]), d)
     flat /= d.world_size
     offset = 0
     for g in grads:
@@ -66,20 +91,16 @@ def average_scalars(values: dict[str, float], d: Dist, weight: float = 1.0) -> d
     if not d.enabled:
         return dict(values)
     keys = sorted(values)
-    # nccl reduces only CUDA tensors: the scalars travel on this rank's device under that backend
-    device = torch.device("cuda", torch.cuda.current_device()) if dist.get_backend() == "nccl" else torch.device("cpu")
-    t = torch.tensor([values[k] * weight for k in keys] + [weight], dtype=torch.float64, device=device)
-    dist.all_reduce(t, op=dist.ReduceOp.SUM)
+    t = _sum_over_ranks(torch.tensor([values[k] * weight for k in keys] + [weight], dtype=torch.float64), d)
     return {k: float(t[i] / t[-1]) for i, k in enumerate(keys)}
 
 
 def average_tensor(t: torch.Tensor, d: Dist) -> torch.Tensor:
-    """Mean of ``t`` over ranks (a copy; ``t`` itself is left as it is)."""
+    """Mean of ``t`` over ranks: a new tensor on ``t``'s device and of its dtype (``t`` itself is
+    left as it is)."""
     if not d.enabled:
         return t
-    out = t.detach().clone()
-    dist.all_reduce(out, op=dist.ReduceOp.SUM)
-    return out / d.world_size
+    return _sum_over_ranks(t, d) / d.world_size
 
 
 def barrier(d: Dist) -> None:

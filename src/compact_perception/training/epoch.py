@@ -16,7 +16,7 @@ import torch
 from tqdm.auto import tqdm
 
 from . import distributed as ddp
-from ..core.errors import RunError
+from ..core.errors import NonFinite, RunError
 from ..data import set_epoch, to_device
 from ..losses import scale_de_loss
 from ..metrics import compute_metrics, scores_from_means, total_metric_partial
@@ -39,10 +39,6 @@ def split_scores(means: dict[str, float]) -> dict[str, float]:
     """A split's mean scores with TM and MV recomputed from the four means (eq. 6-7, as the
     paper's Table II defines MV; a mean of per-batch MV would not be it)."""
     return {**means, **scores_from_means(means)}
-
-
-class NonFinite(ArithmeticError):
-    """A loss or score that is not a finite number: the run has diverged (e.g. a too large lr)."""
 
 
 def _diverged(run: RunState, err: NonFinite) -> RunError:
@@ -123,10 +119,23 @@ def validate(run: RunState) -> dict[str, float]:
     return means
 
 
+def _step_taken(scaler: torch.amp.GradScaler, scale_before: float) -> bool:
+    """Whether the optimiser step just taken went through: always, unless a float16 GradScaler
+    found an inf or nan among the (rank-averaged) gradients, skipped it and lowered its scale.
+    Reading the scale is a device-to-host copy: fp16 runs pay it, fp32 and bf16 do not."""
+    return not scaler.is_enabled() or scaler.get_scale() >= scale_before
+
+
 def train_step(run: RunState, batch: dict, step: int, n_steps: int) -> tuple[dict[str, float], int]:
     """One optimiser step on ``batch`` (the weighting's protocol: ``before_backward``, its
-    ``backward``, the data-parallel gradient mean); returns the step's losses and metrics and the
-    number of frames."""
+    ``backward``, the data-parallel gradient mean, the optimiser step, then ``after_backward``, which
+    commits new loss weights only with a step the GradScaler took); returns the step's losses and
+    metrics and the number of frames.
+
+    Data-parallel order: the gradients are averaged before they are unscaled, so an inf on one
+    rank skips the step on every rank alike; the loss weights are averaged only when they changed
+    since they were last averaged (at a step or at an epoch's end, DWA's: a weighting replaces ``w``
+    when it changes it, never edits it in place, so an identity test tells)."""
     spec, weighting, scaler = run.spec, run.weighting, run.scaler
     batch = to_device(batch, spec.device, spec.num_seg_classes, dtype=spec.dtype)
     run.optimizer.zero_grad(set_to_none=True)
@@ -135,18 +144,20 @@ def train_step(run: RunState, batch: dict, step: int, n_steps: int) -> tuple[dic
     with autocast_context(spec.device, run.precision):  # the forward only: losses in float32 (BCE clamps)
         out = float_outputs(run.forward(batch))
     losses = finite_losses(run.model, out, batch, run.de_factor)  # before any update: last.pt stays good
-    weighting.grad_scale = scaler.get_scale() if scaler.is_enabled() else 1.0
+    scale_before = scaler.get_scale() if scaler.is_enabled() else 1.0
+    weighting.grad_scale = scale_before
     weighting.before_backward(step, n_steps, losses, run.model)
     total = weighting.backward(losses, run.model, scaler.scale)     # with the step's weights w(t)
     if not math.isfinite(total.item()):  # finite losses, non-finite weights (a diverged weighting)
         raise NonFinite(f"non-finite total loss ({total.item()})")
-    weighting.after_backward()                                      # w(t+1), if the step updated them
-    if spec.dist.enabled:  # each rank's update saw its own batch: agree on the mean weights
-        weighting.set_weights(ddp.average_tensor(weighting.w, spec.dist))
+    ddp.average_gradients(list(run.model.parameters()), spec.dist)  # still scaled: an inf reaches every rank
     scaler.unscale_(run.optimizer)
-    ddp.average_gradients(list(run.model.parameters()), spec.dist)
     scaler.step(run.optimizer)
     scaler.update()
+    weighting.after_backward(taken=_step_taken(scaler, scale_before))  # w(t+1), if the step updated them
+    if spec.dist.enabled and weighting.w is not run.synced_w:  # changed by a rank's own batch: agree
+        weighting.set_weights(ddp.average_tensor(weighting.w, spec.dist))
+        run.synced_w = weighting.w
     with torch.no_grad():
         values = {f"loss_{k}": v.item() for k, v in losses.items()}
         values["loss_total"] = total.item()

@@ -93,6 +93,7 @@ class RunState:
     train_loader: Optional[DataLoader] = None
     val_loader: Optional[DataLoader] = None
     live: Any = None                   # dvclive.Live on rank 0, None elsewhere
+    synced_w: Any = None               # the weighting's w as last averaged over ranks (data-parallel runs)
 
     def elapsed(self) -> float:
         """Training seconds so far, earlier calls included."""

@@ -42,7 +42,7 @@ import torch
 from . import distributed as ddp
 from ..core import catalog, io
 from ..core.config import ModelRecipe, Params
-from ..core.determinism import release_torch_pins, resolve_device, set_threads
+from ..core.determinism import release_torch_pins, resolve_device, set_determinism, set_threads
 from ..core.errors import RunError
 from ..data import make_loader, to_device
 from ..losses import de_loss_factor
@@ -155,7 +155,7 @@ def _check_inputs(params: Params, model_id: str, recipe: ModelRecipe, where: str
     if not compact and recipe.de_loss is not None:
         raise RunError(f"{where}.de_loss: only the compact models take it (a baseline keeps its own losses); "
                        "remove the key (set it to null where the recipe inherits it from train.recipe)")
-    weighting_settings(recipe)
+    weighting_settings(recipe, compiled=params.train.compile)
     meta = read_meta(cache_dir)
     n_train = len(read_split(cache_dir, "train", meta).frame_ids)
     n_val = len(read_split(cache_dir, "val", meta).frame_ids)
@@ -254,8 +254,8 @@ def _setup(spec: RunSpec) -> RunState:
     """Seed the RNGs and build what trains: the network (channels-last, compiled forward if asked),
     the loss weighting, the optimiser, the plateau schedule, early stopping, the precision."""
     tp, recipe = spec.params.train, spec.recipe
+    set_determinism(spec.device, tp.deterministic, tp.tf32)  # before the first kernel (cuBLAS reads its env once)
     seed_everything(spec.seed)
-    torch.use_deterministic_algorithms(True, warn_only=True)
     tasks = network_tasks(recipe, catalog.MODELS[spec.model_id].tasks)  # one task for the study's single-task nets
     model = build_model(spec.model_id, spec.dataset_id, tasks).to(device=spec.device, dtype=spec.dtype)
     if tp.channels_last:
@@ -279,7 +279,7 @@ def _resume(run: RunState) -> Optional[dict]:
     """Continue after the last finished epoch when ``last.pt`` is of this run (its digest), else
     start afresh; returns the summary of a run already complete for this code, params and data."""
     spec = run.spec
-    state = load_resumable(spec.paths.last, spec.digest, spec.device)
+    state = load_resumable(spec.paths.last, spec.digest)
     if state is not None and state.get("finished") and spec.paths.summary.exists():
         log.info("%s: already complete for this code, params and data", spec.paths.out_dir)
         ddp.shutdown(spec.dist)
@@ -364,7 +364,7 @@ def _export_best(run: RunState) -> dict:
     from ..onnx_export import export_onnx
 
     spec = run.spec
-    best = read_checkpoint(spec.paths.best, spec.device, f"delete {spec.paths.last} to retrain from scratch")
+    best = read_checkpoint(spec.paths.best, f"delete {spec.paths.last} to retrain from scratch")
     run.model.load_state_dict(best["model"])
     batch = to_device(next(iter(run.val_loader)), spec.device, spec.num_seg_classes)
     one = {k: v[:1] for k, v in batch.items()}

@@ -23,7 +23,8 @@ Interface (:class:`~.base.LossWeighting`)
   when loss scaling is off). Gradient-surgery methods (pcgrad, cagrad) override it: T per-task
   ``torch.autograd.grad`` passes, then the combined gradient is *added* to ``.grad`` (set when
   it is ``None``); uw overrides it to also step its log-variances.
-- ``before_backward(step, n_steps, losses, model) -> None``; ``after_backward() -> None``
+- ``before_backward(step, n_steps, losses, model) -> None``; ``after_backward(taken=True) -> None``
+  (``taken``: whether the optimiser step went through; a float16 GradScaler skips overflowing ones)
 - ``on_epoch_end(improved: bool) -> None``: ``improved`` = this epoch's validation TM dropped;
   plateau halving of the weight lr (MGN) after ``plateau_patience`` epochs without a drop,
   ``lr <- max(lr * plateau_factor, lr_min)``.
@@ -42,8 +43,10 @@ Step protocol (trainer, every training step; ``step`` counts 0..n_steps-1 within
     weighting.grad_scale = scaler.get_scale()              # 1.0 without loss scaling
     weighting.before_backward(step, n_steps, losses, model)  # MGN / GradNorm compute w(t+1) here
     total = weighting.backward(losses, model, scaler.scale)  # with the step's weights w(t)
-    weighting.after_backward()                               # w(t+1) taken (Algorithm 1's order)
+    average_gradients(...)                                   # data-parallel: before unscaling
     scaler.unscale_(optimizer); scaler.step(optimizer); scaler.update()
+    weighting.after_backward(taken)                          # w(t+1) committed with a step taken
+    # data-parallel: w averaged over ranks when it changed (w is replaced, never edited in place)
     ... after validation: weighting.on_epoch_end(improved)
 
 - static / none: every hook is a no-op (w = 1).
@@ -120,23 +123,32 @@ def weighting_class(key: str) -> type[LossWeighting]:
     return WEIGHTINGS[key]
 
 
-def weighting_settings(recipe: ModelRecipe, source: str = "params.yaml") -> Strict | None:
+def weighting_settings(recipe: ModelRecipe, source: str = "params.yaml", *, compiled: bool = False) -> Strict | None:
     """The settings of the recipe's weighting, its section validated by the method's ``params_model``
     (``None`` for a method without settings), checked before a stage writes anything. Bad input is a
     :class:`~compact_perception.core.config.ParamsError` naming the key in ``source``, e.g.
-    ``params.yaml: study.arms.uw.uw.lr: Input should be a valid number (got 'fast')``."""
+    ``params.yaml: study.arms.uw.uw.lr: Input should be a valid number (got 'fast')``. ``compiled``
+    (``train.compile``): a method that differentiates through the network's gradients
+    (:meth:`~.base.LossWeighting.needs_double_backward`: MGN's authors update) is refused, since
+    torch.compile's AOTAutograd has no double backward."""
     if recipe.weighting not in WEIGHTINGS:
         raise ParamsError(f"{source}: {recipe.key_of('weighting')}: unknown loss weighting {recipe.weighting!r}; "
                           f"known: {', '.join(WEIGHTINGS.keys())}")
-    schema, key = WEIGHTINGS[recipe.weighting].params_model, recipe.key_of(recipe.weighting)
+    cls = WEIGHTINGS[recipe.weighting]
+    schema, key = cls.params_model, recipe.key_of(recipe.weighting)
     if schema is None:
         if recipe.section(recipe.weighting):
             raise ParamsError(f"{source}: {key}: weighting {recipe.weighting!r} takes no settings; remove the key")
         return None
     try:
-        return schema.model_validate(recipe.section(recipe.weighting))
+        settings = schema.model_validate(recipe.section(recipe.weighting))
     except ValidationError as err:
         raise ParamsError(format_error(err, source, key)) from None
+    if compiled and cls.needs_double_backward(settings):
+        raise ParamsError(f"{source}: train.compile: true cannot train {key} (its update differentiates through the "
+                          "network's gradients, a double backward torch.compile does not support); set "
+                          "train.compile: false")
+    return settings
 
 
 def network_tasks(recipe: ModelRecipe, tasks: Sequence[str]) -> tuple[str, ...]:

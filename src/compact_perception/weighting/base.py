@@ -56,6 +56,8 @@ class LossWeighting:
             if unknown:
                 raise KeyError(f"weights for unknown task(s) {sorted(unknown)}; tasks: {list(self.tasks)}")
             w = [float(weights.get(t, 1.0)) for t in self.tasks]
+        # w is replaced when it changes, never edited in place (the data-parallel step tells a
+        # change by identity: training/epoch.py)
         self.w: Tensor = torch.tensor(w, dtype=torch.float64)
         self.plateau_patience = int(plateau_patience)
         self.plateau_factor = float(plateau_factor)
@@ -121,11 +123,20 @@ class LossWeighting:
     def before_backward(self, step: int, n_steps: int, losses: Mapping[str, Tensor], model: nn.Module) -> None:
         """Called every training step after the forward pass, before ``total(losses).backward()``."""
 
-    def after_backward(self) -> None:
-        """Called every training step after :meth:`backward`, before the optimiser step. A method
-        that computes new weights from this step's graph (:meth:`before_backward`: MGN, GradNorm)
-        takes them here, so the step's own backward used the weights it started with, w(t), as
-        Algorithm 1 and the authors' ``train.py`` (and Chen et al.'s GradNorm) have it."""
+    def after_backward(self, taken: bool = True) -> None:
+        """Called every training step after :meth:`backward` and the optimiser step. A method that
+        computes new weights from this step's graph (:meth:`before_backward`: MGN, GradNorm) takes
+        them here, so the step's own backward used the weights it started with, w(t), as Algorithm
+        1 and the authors' ``train.py`` (and Chen et al.'s GradNorm) have it. ``taken``: whether the
+        optimiser step went through; a float16 GradScaler skips a step whose gradients overflowed,
+        and the weights computed from that step are then dropped with it."""
+
+    @classmethod
+    def needs_double_backward(cls, settings: Any) -> bool:
+        """Whether this method, with these settings (its ``params_model``), differentiates through
+        a gradient of the network (``create_graph=True``): torch.compile's AOTAutograd cannot, so
+        such a recipe is refused with ``train.compile`` (:func:`~compact_perception.weighting.weighting_settings`)."""
+        return False
 
     def on_epoch_end(self, improved: bool) -> None:
         """Called once per epoch after validation; ``improved`` = the validation TM dropped."""

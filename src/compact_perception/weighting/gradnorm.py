@@ -9,7 +9,7 @@ from torch import Tensor
 
 from ..core.config import Strict
 from .base import register
-from .mgn import GradNormCore
+from .mgn import GradNormCore, finite_or_raise
 
 __all__ = ["GradNormParams", "GradNormWeighting"]
 
@@ -49,17 +49,24 @@ class GradNormWeighting(GradNormCore):
         self.bad_epochs = 0 if improved else self.bad_epochs + 1
 
     def before_backward(self, step: int, n_steps: int, losses: Mapping[str, Tensor], model: nn.Module) -> None:
-        """One GradNorm update per training step: w(t+1) from this step's gradient norms, taken
-        by :meth:`after_backward` once the step's backward has used w(t) (Chen et al. 2018)."""
+        """One GradNorm update per training step: this step's gradient of L_grad on w, applied by
+        :meth:`after_backward` once the step's backward has used w(t) (Chen et al. 2018)."""
         if self.L0 is None:
             self.L0 = self._loss_vector(losses)
-        g = self._grad_w(losses, model)
+        self._pending = self._grad_w(losses, model)
+
+    def after_backward(self, taken: bool = True) -> None:
+        """The weights' own optimiser step on this step's gradient, the floor and renormalisation:
+        w(t+1). A step the GradScaler skipped (``taken`` false) moves neither w nor that optimiser."""
+        g, self._pending = self._pending, None
+        if g is None or not taken:
+            return
         self.opt.zero_grad(set_to_none=True)
-        self._param.grad = g.clone()
+        self._param.grad = finite_or_raise(g, "GradNorm weight gradient").clone()
         self.opt.step()
         with torch.no_grad():
             self._param.copy_(self._renormalise(self._param.detach()))
-        self._pending = self._param.detach().clone()
+        self.set_weights(finite_or_raise(self._param.detach(), "GradNorm loss weights"))
         self.n_updates += 1
 
     def state_dict(self) -> dict[str, Any]:

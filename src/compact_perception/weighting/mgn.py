@@ -4,6 +4,7 @@ Shared machinery with the original GradNorm (:mod:`.gradnorm`) lives in :class:`
 """
 from __future__ import annotations
 
+import math
 from contextlib import AbstractContextManager, nullcontext
 from typing import Any, Mapping, Sequence
 
@@ -13,10 +14,11 @@ from torch import Tensor, nn
 from pydantic import Field, model_validator
 
 from ..core.config import ModelRecipe, Strict, check_lr_floor
+from ..core.errors import NonFinite
 from ..schedule import PlateauRule, plateau_due
 from .base import LossWeighting, recipe_params, register, shared_weights
 
-__all__ = ["GradNormCore", "MGNWeighting", "MgnParams", "full_precision"]
+__all__ = ["GradNormCore", "MGNWeighting", "MgnParams", "finite_or_raise", "full_precision"]
 
 
 class MgnParams(Strict):
@@ -33,6 +35,19 @@ class MgnParams(Strict):
         return self
 
 _LOW = (torch.float16, torch.bfloat16)
+
+
+def _retry_scales(grad_scale: float) -> tuple[float, ...]:
+    """The loss scales a gradient norm is tried at: the GradScaler's, then none (1.0), where a
+    float16 backward cannot overflow. With no loss scaling, 1.0 alone."""
+    return (float(grad_scale), 1.0) if float(grad_scale) != 1.0 else (1.0,)
+
+
+def finite_or_raise(w: Tensor, what: str) -> Tensor:
+    """``w`` when every value is finite, else :class:`NonFinite` naming ``what`` and the values."""
+    if not bool(torch.isfinite(w).all()):
+        raise NonFinite(f"non-finite {what} ({[round(float(x), 6) for x in w.tolist()]})")
+    return w
 
 
 def full_precision(losses: Mapping[str, Tensor]) -> AbstractContextManager[Any]:
@@ -130,9 +145,10 @@ class GradNormCore(LossWeighting):
         return torch.tensor([float(losses[t].detach()) for t in self.tasks], dtype=torch.float64)
 
     def _grad_norms(self, losses: Mapping[str, Tensor], model: nn.Module) -> Tensor:
-        """``n_i = ||grad_W L_i||_2`` (float64, (T,)); writes no ``.grad``."""
+        """``n_i = ||grad_W L_i||_2`` (float64, (T,)); writes no ``.grad``. Under a GradScaler the
+        loss is scaled in and the norm scaled out; a scaled norm that overflowed is taken again
+        unscaled (:data:`_retry_scales`), and one that is not finite even then is :class:`NonFinite`."""
         names = self._shared_names(model)
-        scale = float(self.grad_scale)
         norms = []
         with full_precision(losses):
             for t in self.tasks:
@@ -141,11 +157,13 @@ class GradNormCore(LossWeighting):
                 if not L.requires_grad:
                     norms.append(0.0)
                     continue
-                if scale != 1.0:
-                    n = self._norm(L * scale, W) / scale
-                    norms.append(n if n == n and n != float("inf") else self._norm(L, W))
+                for scale in _retry_scales(self.grad_scale):
+                    n = self._norm(L * scale, W) / scale if scale != 1.0 else self._norm(L, W)
+                    if math.isfinite(n):
+                        break
                 else:
-                    norms.append(self._norm(L, W))
+                    raise NonFinite(f"non-finite {t} gradient norm for the {self.key} weights ({n})")
+                norms.append(n)
         return torch.tensor(norms, dtype=torch.float64)
 
     @staticmethod
@@ -182,12 +200,14 @@ class GradNormCore(LossWeighting):
                      "l_grad": float(l_grad.detach()), "grad_w": g.detach()}
         return g.detach()
 
-    def after_backward(self) -> None:
+    def after_backward(self, taken: bool = True) -> None:
         """Take the weights this step's update computed (:meth:`before_backward`): the step's
-        ``total(losses).backward()`` used w(t), the next step uses w(t+1)."""
-        if self._pending is not None:
-            self.set_weights(self._pending)
-            self._pending = None
+        ``total(losses).backward()`` used w(t), the next step uses w(t+1). A step the GradScaler
+        skipped (``taken`` false) drops them: they came from the gradients it found overflowing."""
+        pending, self._pending = self._pending, None
+        if pending is not None and taken:
+            self.set_weights(finite_or_raise(pending, f"{self.key} loss weights"))
+            self.n_updates += 1
 
     # ------------------------------------------------------------------ plateau / state
     def on_epoch_end(self, improved: bool) -> None:
@@ -246,17 +266,13 @@ class MGNWeighting(GradNormCore):
         super().__init__(tasks, shared, **kw)
         self.authors_mode = bool(authors_mode)
 
-    def _grad_w_authors(self, losses: Mapping[str, Tensor], model: nn.Module) -> Tensor:
-        """Authors' variant: second-order terms reach the network; w also gets dL_total/dw."""
+    def _authors_G(self, losses: Mapping[str, Tensor], model: nn.Module, w: Tensor) -> Tensor:
+        """G_i = ||grad_W (w_i L_i)|| with ``create_graph=True`` (the authors' code), at the
+        GradScaler's loss scale and, where that overflows a float16 backward, again unscaled
+        (:data:`_retry_scales`); :class:`NonFinite` when no scale gives finite norms."""
         names = self._shared_names(model)
-        L = self._loss_vector(losses)
-        ref = losses[self.tasks[0]]
-        scale = float(self.grad_scale)  # float16 GradScaler: scale in, unscale out (class doc)
-        # w (and so G, L_MGN) in float32 or wider, even for float16 / bfloat16 losses
-        w = self.w.detach().to(device=ref.device, dtype=torch.promote_types(ref.dtype, torch.float32))
-        w.requires_grad_(True)
-        Gs = []
-        with full_precision(losses):
+        for scale in _retry_scales(self.grad_scale):
+            Gs = []
             for i, t in enumerate(self.tasks):
                 W = shared_weights(model, names[t])
                 Li = _at_least_float32(losses[t])
@@ -269,16 +285,39 @@ class MGNWeighting(GradNormCore):
                 Gi = sq.clamp_min(1e-30).sqrt()  # no inf gradient at a zero norm
                 Gs.append(Gi if scale == 1.0 else Gi / scale)
             G = torch.stack(Gs)
+            if bool(torch.isfinite(G.detach()).all()):
+                return G
+        raise NonFinite(f"non-finite gradient norms G for the MGN weights ({G.detach().tolist()})")
+
+    def _grad_w_authors(self, losses: Mapping[str, Tensor], model: nn.Module) -> Tensor:
+        """Authors' variant: second-order terms reach the network; w also gets dL_total/dw."""
+        L = self._loss_vector(losses)
+        ref = losses[self.tasks[0]]
+        scale = float(self.grad_scale)  # float16 GradScaler: scale in, unscale out (class doc)
+        # w (and so G, L_MGN) in float32 or wider, even for float16 / bfloat16 losses
+        w = self.w.detach().to(device=ref.device, dtype=torch.promote_types(ref.dtype, torch.float32))
+        w.requires_grad_(True)
+        with full_precision(losses):
+            G = self._authors_G(losses, model, w)
             r, target = self._targets(G.detach().double().cpu(), L)
             l_mgn = (target.to(G) - G).abs().sum()
             # into w.grad AND the network's .grad (authors' code); scaled like the total loss so
-            # the GradScaler's unscale_ of .grad leaves the second-order terms at their value
+            # the GradScaler's unscale_ of .grad leaves the second-order terms at their value (an
+            # overflow there is the scaler's to find: it skips the step, and these weights with it)
             (l_mgn if scale == 1.0 else l_mgn * scale).backward(retain_graph=True)
-        gw = w.grad.detach().double().cpu()
-        g = (gw if scale == 1.0 else gw / scale) + L  # + dL_total/dw_i = L_i
+            gw = w.grad.detach().double().cpu()
+            gw = gw if scale == 1.0 else gw / scale
+            if scale != 1.0 and not bool(torch.isfinite(gw).all()):  # w's share taken again, unscaled
+                gw = torch.autograd.grad(l_mgn, w, retain_graph=True)[0].detach().double().cpu()
+        g = gw + L  # + dL_total/dw_i = L_i
         self.last = {"G": G.detach().double().cpu(), "r": r, "target": target, "L": L,
                      "l_grad": float(l_mgn.detach()), "grad_w": g}
         return g
+
+    @classmethod
+    def needs_double_backward(cls, settings: Any) -> bool:
+        """The authors' update differentiates L_MGN through G's gradients (``create_graph``)."""
+        return bool(settings.authors_mode)
 
     def before_backward(self, step: int, n_steps: int, losses: Mapping[str, Tensor], model: nn.Module) -> None:
         """Algorithm 1: record L_i(0) at step 0; at step n_steps - 1 compute w(t+1), which
@@ -290,7 +329,6 @@ class MGNWeighting(GradNormCore):
         if step == n_steps - 1:
             g = self._grad_w_authors(losses, model) if self.authors_mode else self._grad_w(losses, model)
             self._pending = self._renormalise(self.w - self.lr * g)
-            self.n_updates += 1
 
     def state_dict(self) -> dict[str, Any]:
         s = super().state_dict()
