@@ -97,6 +97,22 @@ def tiny(params: dict) -> dict:
     return params
 
 
+def copy_project(root: Path, dest: Path, shrink) -> Path:
+    """The project's files as git knows them (tracked and not ignored), without the stages' outputs
+    or dvc.lock, copied to ``dest`` with params.yaml passed through ``shrink`` (a tiny scale)."""
+    files = subprocess.run(["git", "ls-files", "-co", "--exclude-standard"], cwd=root, capture_output=True,
+                           text=True, check=True).stdout.split()
+    for f in files:
+        src = root / f
+        if src.is_file() and not f.startswith(("reports/", "data/", "runs/", "results/")) or f == "data/.gitignore":
+            (dest / f).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(src, dest / f)
+    (dest / "dvc.lock").unlink(missing_ok=True)
+    params = shrink(yaml.safe_load((dest / "params.yaml").read_text()))
+    (dest / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    return dest
+
+
 def dvc_env(tmp: Path) -> dict:
     env = dict(os.environ)
     env.update({
@@ -138,17 +154,7 @@ def changed_stages(repo: Path, env: dict) -> set[str]:
 @pytest.fixture(scope="module")
 def pipeline(tmp_path_factory, root: Path):
     tmp = tmp_path_factory.mktemp("e2e")
-    repo = tmp / "repo"
-    files = subprocess.run(["git", "ls-files", "-co", "--exclude-standard"], cwd=root, capture_output=True,
-                           text=True, check=True).stdout.split()
-    for f in files:
-        src = root / f
-        if src.is_file() and not f.startswith(("reports/", "data/", "runs/", "results/")) or f == "data/.gitignore":
-            (repo / f).parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy2(src, repo / f)
-    (repo / "dvc.lock").unlink(missing_ok=True)
-    params = tiny(yaml.safe_load((repo / "params.yaml").read_text()))
-    (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    repo = copy_project(root, tmp / "repo", tiny)
     env = dvc_env(tmp)
     for cmd in (["git", "init", "-q"], ["git", "add", "-A"], ["git", "commit", "-qm", "tiny"]):
         run(cmd, repo, env)

@@ -26,7 +26,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from test_pipeline_e2e import dvc_env, every, ran_stages, retrained, run, set_param
+from test_pipeline_e2e import copy_project, dvc_env, every, ran_stages, retrained, run, set_param
 
 pytestmark = pytest.mark.slow
 
@@ -88,17 +88,7 @@ def run_cache_commands(remote: Path) -> set[str]:
 def team(tmp_path_factory, root: Path):
     """Clone 1 adds the remote, reproduces everything, and pushes to git and to the DVC remote."""
     team = Team(tmp_path_factory.mktemp("remote"))
-    origin = team.tmp / "origin"
-    files = subprocess.run(["git", "ls-files", "-co", "--exclude-standard"], cwd=root, capture_output=True,
-                           text=True, check=True).stdout.split()
-    for f in files:
-        src = root / f
-        if src.is_file() and not f.startswith(("reports/", "data/", "runs/", "results/")) or f == "data/.gitignore":
-            (origin / f).parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy2(src, origin / f)
-    (origin / "dvc.lock").unlink(missing_ok=True)
-    params = tiny(yaml.safe_load((origin / "params.yaml").read_text()))
-    (origin / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    origin = copy_project(root, team.tmp / "origin", tiny)
     env = team.env(origin)
     for cmd in (["git", "init", "-q", "-b", "main"], ["git", "add", "-A"], ["git", "commit", "-qm", "tiny"],
                 ["git", "init", "-q", "--bare", "-b", "main", str(team.git)],
