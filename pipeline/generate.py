@@ -26,7 +26,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default="data/raw", help="parent of the dataset directory")
     ap.add_argument("--figure-dir", default="reports/figures")
     args = ap.parse_args(argv)
-    params = start(args.params)
+    params = start(args.params, workers=("world.workers",))
     dp = getattr(params.datasets, args.dataset)
     if dp.source == "authors":
         from compact_perception.authors import describe_authors_dataset

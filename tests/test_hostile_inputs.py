@@ -121,3 +121,121 @@ def test_every_params_error_is_bounded_in_length(key, value, shown):
     msg = str(exc.value)
     assert msg.startswith(f"params.yaml: ") and key in msg and shown in msg, msg[:500]
     assert "\n" not in msg and len(msg) < 4000, len(msg)
+
+
+# ----------------------------------------------------------------------------- processes bounded by the machine
+class _Refused(Exception):
+    """Raised by a stand-in pool once it has recorded the size it was asked for."""
+
+
+def _refusing_context(sizes: list[int]):
+    """A stand-in for ``multiprocessing.get_context(...)`` whose ``Pool(n)`` records ``n`` and refuses."""
+    class _Context:
+        @staticmethod
+        def Pool(n, *args, **kwargs):  # noqa: N802 (multiprocessing's name)
+            sizes.append(n)
+            raise _Refused(n)
+
+    return lambda *_a, **_k: _Context()
+
+
+@pytest.fixture()
+def two_cores(monkeypatch):
+    """This process may run on two cores (its affinity mask), whatever the machine has."""
+    import os
+
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1})
+
+
+def test_every_worker_count_is_bounded_by_the_usable_cores(tmp_path, monkeypatch, two_cores):
+    """``train.parallel_runs: 64`` with many runs could start 64 training processes on 2 cores (and
+    every other worker count as many as it said). Each place that starts processes now takes at
+    most the usable cores (os.sched_getaffinity)."""
+    from compact_perception import authors, preprocess
+    from compact_perception.nuscenes import ingest
+    from compact_perception.training import parallel
+    from compact_perception.world import generate as gen
+    from fixtures_raw import make_raw_dataset
+
+    sizes: list[int] = []
+    for module in (parallel, gen, preprocess, authors, ingest):
+        monkeypatch.setattr(module.mp, "get_context", _refusing_context(sizes))
+    with pytest.raises(_Refused):
+        parallel.run_jobs(len, [parallel.Job(str(i), ("ab",)) for i in range(5)], 64, desc="five jobs")
+    d = repo_params_dict()
+    d["world"]["workers"] = 8
+    d["preprocess"]["workers"] = 8
+    params = parse_params(d)
+    with pytest.raises(_Refused):
+        gen.generate_dataset(params, "A", tmp_path / "raw" / "A")
+    raw, _ = make_raw_dataset(tmp_path / "raw" / "B", dataset="B")
+    with pytest.raises(_Refused):
+        preprocess.preprocess_sim(raw, tmp_path / "cache" / "B", "B", params.preprocess)
+    with pytest.raises(_Refused):
+        authors._pool(8)
+    with pytest.raises(_Refused):
+        list(ingest.iter_frames(None, [("a", "t1"), ("b", "t2")], 32, params.preprocess, workers=8))
+    assert sizes == [2, 2, 2, 2, 2]
+    assert not (tmp_path / "raw" / "A").exists() and not (tmp_path / "cache" / "B").exists()
+
+
+def test_a_training_runs_loader_workers_are_bounded_by_the_usable_cores(tmp_path, monkeypatch, two_cores):
+    from compact_perception.training import train as train_mod
+    from repo_params import cap_epochs
+    from synthetic import make_cache
+
+    asked: list[int] = []
+
+    def loader(*args, num_workers=0, **kwargs):
+        asked.append(num_workers)
+        raise _Refused(num_workers)
+
+    monkeypatch.setattr(train_mod, "make_loader", loader)
+    d = repo_params_dict()
+    cap_epochs(d, 1)
+    d["train"].update(num_workers=8, device="cpu", batch_size=2)
+    with pytest.raises(_Refused):
+        train_mod.train_run(parse_params(d), "A", "compact_1l", 0, make_cache(tmp_path / "cache", size=32,
+                                                                              counts=(4, 2, 2)), tmp_path / "run",
+                            export_onnx=False, progress=False)
+    assert asked == [2]
+
+
+def test_a_stage_logs_one_line_naming_each_count_it_lowers(tmp_path, caplog, two_cores):
+    import logging
+
+    from pipeline._common import start
+
+    d = repo_params_dict()
+    d["train"].update(parallel_runs=64, num_workers=8)
+    path = tmp_path / "params.yaml"
+    path.write_text(yaml.safe_dump(d))
+    with caplog.at_level(logging.INFO):
+        params = start(path, workers=("train.parallel_runs", "train.num_workers"))
+    lines = [r.getMessage() for r in caplog.records if "CPU core" in r.getMessage()]
+    assert lines == ["this machine lends 2 CPU cores: train.parallel_runs 64 -> 2, train.num_workers 8 -> 2 "
+                     "(a worker count changes no result)"]
+    assert params.train.parallel_runs == 64          # the params keep what is written (the data stages record it)
+
+
+@pytest.mark.parametrize("stage", ["train", "evaluate"])
+def test_a_device_the_machine_lacks_is_refused_before_any_worker_starts(tmp_path, monkeypatch, stage):
+    """``train.device: cuda`` without CUDA was one line, but only after the worker pool had started
+    (each job checked the device on its own)."""
+    import importlib
+
+    import torch
+
+    module = importlib.import_module(f"pipeline.{stage}")
+    started: list = []
+    monkeypatch.setattr(module, "run_jobs", lambda *a, **k: started.append(a))
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    d = repo_params_dict()
+    d["train"]["device"] = "cuda"
+    path = tmp_path / "params.yaml"
+    path.write_text(yaml.safe_dump(d))
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as exc:
+        module.main(["--dataset", "A", "--params", str(path)])
+    assert exc.value.code == f"error: {path}: train.device: 'cuda' but this machine has no CUDA device (use 'auto' or 'cpu')"
+    assert started == [] and not (tmp_path / "runs").exists() and not (tmp_path / "results").exists()

@@ -27,6 +27,7 @@ from typing import Any, Callable, Sequence
 from tqdm.auto import tqdm
 
 from ..core.errors import os_error_line
+from ..core.machine import bounded
 
 log = logging.getLogger(__name__)
 
@@ -59,8 +60,10 @@ def _call(fn: Callable[..., Any], job: Job) -> tuple[str, Any, str | None]:
 def run_jobs(fn: Callable[..., Any], jobs: Sequence[Job], processes: int, desc: str) -> list[Any]:
     """Run ``fn(*job.args)`` for every job in ``processes`` worker processes (in this process
     when ``processes`` is 1 or there is one job) and return the results in the order of
-    ``jobs``. ``fn`` must be a module-level function (it is pickled by name). Raises
-    :class:`JobError` with the first failing job's message."""
+    ``jobs``. ``fn`` must be a module-level function (it is pickled by name). ``processes`` is
+    bounded by the usable cores (:func:`~..core.machine.bounded`). Raises :class:`JobError` with
+    the first failing job's message."""
+    processes = bounded(processes)
     order = sorted(range(len(jobs)), key=lambda i: -jobs[i].cost)   # stable: equal costs keep their order
     results: dict[str, Any] = {}
     bar = tqdm(total=len(jobs), desc=desc, unit="run")

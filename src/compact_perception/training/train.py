@@ -44,6 +44,7 @@ from ..core import catalog, io
 from ..core.config import ModelRecipe, Params
 from ..core.determinism import release_torch_pins, resolve_device, set_threads
 from ..core.errors import RunError
+from ..core.machine import bounded
 from ..data import make_loader, to_device
 from ..losses import de_loss_factor
 from ..models import build_model
@@ -300,13 +301,14 @@ def _open(run: RunState) -> None:
 
     spec, tp = run.spec, run.spec.params.train
     channels = catalog.MODELS[spec.model_id].lidar_channels
+    workers = bounded(tp.num_workers)  # at most the usable cores (core.machine): no result changes
     run.val_loader = make_loader(spec.cache_dir, "val", channels, spec.per_rank_batch, shuffle=False, seed=spec.seed,
-                                 num_workers=tp.num_workers, drop_last=False, distributed=spec.dist.enabled)
+                                 num_workers=workers, drop_last=False, distributed=spec.dist.enabled)
     if run.untrained_score is None:  # the Kaiming-initialised network
         run.untrained_score = selection_score(validate(run))
         log.info("%s/%s untrained val score %.4f", spec.dataset_id, spec.model_id, run.untrained_score)
     run.train_loader = make_loader(spec.cache_dir, "train", channels, spec.per_rank_batch, shuffle=True,
-                                   seed=spec.seed, num_workers=tp.num_workers, drop_last=True,
+                                   seed=spec.seed, num_workers=workers, drop_last=True,
                                    distributed=spec.dist.enabled)
     if spec.dist.is_main:
         run.live = Live(str(spec.paths.live), dvcyaml=False, save_dvc_exp=False)

@@ -24,6 +24,7 @@ from ..core import io
 from ..core.catalog import sim_dataset_ids
 from ..core.classes import BEV_NAMES, CARLA_NAMES, CARLA_PALETTE, TAG, palette_to_index
 from ..core.config import TOWNS, Params, ParamsError, WorldParams
+from ..core.machine import bounded
 from ..geometry import VIEWS
 from . import camera as cam
 from .actors import Episode, boxes_to_aabb
@@ -251,7 +252,7 @@ def generate_dataset(params: Params, dataset_id: str, out_dir: str | Path) -> Pa
         pix: dict[str, np.ndarray] = {}
         pts: dict[str, np.ndarray] = {}
         bar = tqdm(total=total, desc=f"generate {dataset_id}", unit="frame", leave=False)
-        workers = min(wp.workers, n_episodes)
+        workers = min(bounded(wp.workers), n_episodes)  # at most the usable cores (core.machine)
         pool = mp.get_context("fork").Pool(workers) if workers > 1 else None
         try:
             results = _in_order(pool, jobs, 2 * workers) if pool else map(_episode_job, jobs)
