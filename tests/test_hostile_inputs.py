@@ -239,3 +239,51 @@ def test_a_device_the_machine_lacks_is_refused_before_any_worker_starts(tmp_path
         module.main(["--dataset", "A", "--params", str(path)])
     assert exc.value.code == f"error: {path}: train.device: 'cuda' but this machine has no CUDA device (use 'auto' or 'cpu')"
     assert started == [] and not (tmp_path / "runs").exists() and not (tmp_path / "results").exists()
+
+
+# ----------------------------------------------------------------------------- errors that blame the right thing
+def test_a_worker_that_cannot_start_is_not_blamed_on_the_output_folder(tmp_path, monkeypatch):
+    """A pool worker that could not start read ``error: runs/A: could not write (Broken pipe)``."""
+    import errno
+    import os
+
+    from compact_perception.training import parallel
+    from pipeline.train import main
+
+    class _Context:
+        @staticmethod
+        def Pool(n, *args, **kwargs):  # noqa: N802
+            raise BrokenPipeError(errno.EPIPE, os.strerror(errno.EPIPE))
+
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1, 2, 3})
+    monkeypatch.setattr(parallel.mp, "get_context", lambda *_a: _Context())
+    d = repo_params_dict()
+    d["train"].update(device="cpu", parallel_runs=2)
+    path = tmp_path / "params.yaml"
+    path.write_text(yaml.safe_dump(d))
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as exc:
+        main(["--dataset", "A", "--params", str(path)])
+    assert exc.value.code == "error: train A: could not start 2 worker processes (Broken pipe)"
+
+
+def test_an_os_error_names_the_file_or_else_the_call_that_failed():
+    import errno
+    import os
+
+    from compact_perception.core.errors import os_error_line
+
+    def send_to_worker():
+        raise BrokenPipeError(errno.EPIPE, os.strerror(errno.EPIPE))
+
+    try:
+        send_to_worker()
+    except OSError as err:
+        line = os_error_line(err, "runs/A")
+    assert line == (f"{__name__}.test_an_os_error_names_the_file_or_else_the_call_that_failed.<locals>.send_to_worker "
+                    "failed (Broken pipe; not a file of runs/A)")
+    # a file the OS names, and a full disk it names none of, are as before
+    assert os_error_line(OSError(errno.EROFS, os.strerror(errno.EROFS), "runs/A/x/last.pt"), "runs/A") == \
+        "runs/A/x/last.pt: could not write (Read-only file system)"
+    assert os_error_line(OSError(errno.ENOSPC, os.strerror(errno.ENOSPC)), "runs/A") == \
+        "runs/A: could not write (No space left on device)"

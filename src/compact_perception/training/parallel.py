@@ -72,10 +72,17 @@ def run_jobs(fn: Callable[..., Any], jobs: Sequence[Job], processes: int, desc: 
             for i in order:
                 _collect(_call(fn, jobs[i]), results, bar)
         else:
-            pool = mp.get_context("spawn").Pool(min(processes, len(jobs)))
+            size = min(processes, len(jobs))
+            try:
+                pool = mp.get_context("spawn").Pool(size)
+            except OSError as err:  # a worker that cannot start (Broken pipe, no memory to fork): not a job's file
+                raise JobError(f"{desc}: could not start {size} worker processes ({err.strerror or err})") from None
             try:
                 for out in pool.imap_unordered(_Caller(fn), [jobs[i] for i in order]):
                     _collect(out, results, bar)
+            except OSError as err:  # the pool's pipes (a job's own errors come back as its message)
+                pool.terminate()
+                raise JobError(f"{desc}: lost the worker processes ({err.strerror or err})") from None
             except BaseException:
                 pool.terminate()
                 raise
