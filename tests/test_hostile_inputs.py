@@ -287,3 +287,71 @@ def test_an_os_error_names_the_file_or_else_the_call_that_failed():
         "runs/A/x/last.pt: could not write (Read-only file system)"
     assert os_error_line(OSError(errno.ENOSPC, os.strerror(errno.ENOSPC)), "runs/A") == \
         "runs/A: could not write (No space left on device)"
+
+
+# ----------------------------------------------------------------------------- recorded
+@pytest.mark.parametrize("precision", [pytest.param("fp16", marks=pytest.mark.slow), "fp32"])  # fp16 is emulated: slow
+def test_a_runs_summary_records_its_device_and_resolved_precision(tmp_path, precision):
+    """A run in fp16 on the CPU trained (finite losses), but its summary.json did not say which
+    precision or device it used. (A subprocess: a precision other than fp32 lifts the process's
+    kernel pins.)"""
+    from repo_params import cap_epochs
+    from synthetic import make_cache
+
+    d = cap_epochs(repo_params_dict(), 1)
+    d["train"].update(precision=precision, device="auto", batch_size=2, num_workers=0)
+    params = tmp_path / "params.yaml"
+    params.write_text(yaml.safe_dump(d))
+    cache = make_cache(tmp_path / "cache", size=32, counts=(4, 2, 2))
+    done = subprocess.run([sys.executable, "-m", "pipeline.train", "--dataset", "A", "--model", "compact_1l",
+                           "--seed", "0", "--params", str(params), "--cache", str(cache), "--out", str(tmp_path / "run")],
+                          capture_output=True, text=True, cwd=ROOT, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert (summary["device"], summary["precision"]) == ("cpu", precision)   # no CUDA in a CPU torch
+    assert summary["device_name"].startswith("CPU")
+
+
+def test_generation_refuses_up_front_a_dataset_the_free_disk_cannot_hold(tmp_path, monkeypatch):
+    """1e6 frames onto a 20 MB disk: one line after 9.5 s of writing, the partial dataset removed.
+    Now the size is estimated from the first frames and refused before anything is written."""
+    import shutil
+    import time
+    from collections import namedtuple
+
+    from compact_perception.world import generate as gen
+    from pipeline.generate import main
+
+    def no_write(*_a, **_k):
+        raise AssertionError("a frame was written")
+
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(shutil, "disk_usage", lambda path: usage(20_000_000, 0, 20_000_000))
+    monkeypatch.setattr(gen.io, "write_npz", no_write)
+    d = repo_params_dict()
+    d["datasets"]["A"]["frames"]["default"] = 1_000_000
+    d["world"]["workers"] = 1
+    path = tmp_path / "params.yaml"
+    path.write_text(yaml.safe_dump(d))
+    monkeypatch.chdir(tmp_path)
+    t0 = time.perf_counter()
+    with pytest.raises(SystemExit) as exc:
+        main(["--dataset", "A", "--params", str(path), "--out", "raw", "--figure-dir", "figs"])
+    assert time.perf_counter() - t0 < 30
+    msg = exc.value.code
+    assert re.fullmatch(r"error: raw/A: 1000000 frames need about [\d,]+ MB \(at least [\d,]+ MB, measured on the "
+                        r"first frames\), 20 MB free on \.; free space or lower datasets\.A\.frames", msg), msg
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["params.yaml"]
+
+
+def test_the_disk_estimate_is_near_what_generation_writes(tmp_path):
+    from compact_perception.world import generate as gen
+
+    d = repo_params_dict()
+    d["datasets"]["A"]["frames"]["default"] = 40
+    d["world"].update(workers=1, frames_per_episode=4)
+    params = parse_params(d)
+    about, at_least = gen.estimate_disk(params, "A")
+    out = gen.generate_dataset(params, "A", tmp_path / "A")
+    written = sum(f.stat().st_size for f in out.rglob("*") if f.is_file())
+    assert at_least <= written and 0.7 * written <= about <= 1.5 * written, (at_least, about, written)
