@@ -355,3 +355,46 @@ def test_the_disk_estimate_is_near_what_generation_writes(tmp_path):
     out = gen.generate_dataset(params, "A", tmp_path / "A")
     written = sum(f.stat().st_size for f in out.rglob("*") if f.is_file())
     assert at_least <= written and 0.7 * written <= about <= 1.5 * written, (at_least, about, written)
+
+
+# ----------------------------------------------------------------------------- what dvc exp run -S leaves
+@pytest.mark.slow
+def test_what_dvc_exp_run_leaves_in_params_yaml_when_a_stage_refuses_and_how_to_undo_it(tmp_path):
+    """``dvc exp run -S '+train.recipe.lrr=0.1'`` (a typo'd new key): the stage refuses it in one
+    line, but DVC leaves the edit in params.yaml. docs/design.md says so and gives the undo; this
+    runs real DVC on a one-stage copy to keep the doc true: the edit stays, ``git checkout
+    params.yaml`` undoes it, ``dvc exp clean`` does not, and a queued run leaves the workspace alone."""
+    import os
+    import shutil
+
+    doc = (ROOT / "docs" / "design.md").read_text()
+    assert "`git checkout params.yaml`" in doc and "`dvc exp clean` does not" in doc
+    repo = tmp_path / "repo"
+    repo.mkdir()
+    shutil.copy(ROOT / "params.yaml", repo / "params.yaml")
+    shutil.copytree(ROOT / "pipeline", repo / "pipeline", ignore=shutil.ignore_patterns("__pycache__"))
+    (repo / "dvc.yaml").write_text("stages:\n  check:\n    cmd: python -m pipeline.nuscenes_sim --out out\n"
+                                   "    deps: [pipeline/nuscenes_sim.py]\n    params: [train.recipe]\n    outs: [out]\n")
+    env = dict(os.environ, DVC_NO_ANALYTICS="1", HOME=str(tmp_path / "home"),
+               DVC_GLOBAL_CONFIG_DIR=str(tmp_path / "dvc-global"), DVC_SYSTEM_CONFIG_DIR=str(tmp_path / "dvc-system"),
+               DVC_SITE_CACHE_DIR=str(tmp_path / "dvc-site"), GIT_AUTHOR_NAME="t", GIT_AUTHOR_EMAIL="t@t",
+               GIT_COMMITTER_NAME="t", GIT_COMMITTER_EMAIL="t@t",
+               PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}")
+
+    def run(*cmd: str) -> subprocess.CompletedProcess:
+        return subprocess.run(cmd, cwd=repo, env=env, capture_output=True, text=True, timeout=300)
+
+    for cmd in (["git", "init", "-q"], ["dvc", "init", "-q"], ["git", "add", "-A"], ["git", "commit", "-qm", "init"]):
+        assert run(*cmd).returncode == 0, cmd
+    committed = (repo / "params.yaml").read_bytes()
+    done = run("dvc", "exp", "run", "-S", "+train.recipe.lrr=0.1")
+    assert done.returncode != 0
+    assert "error: params.yaml: train.recipe.lrr: unknown key" in done.stdout + done.stderr
+    assert run("git", "status", "--porcelain", "params.yaml").stdout.strip() == "M params.yaml"
+    assert "lrr: 0.1" in (repo / "params.yaml").read_text()        # what the doc says is left behind
+    run("dvc", "exp", "clean")
+    assert (repo / "params.yaml").read_bytes() != committed           # dvc exp clean does not undo it
+    assert run("git", "checkout", "params.yaml").returncode == 0      # the doc's undo
+    assert (repo / "params.yaml").read_bytes() == committed
+    assert run("dvc", "exp", "run", "--queue", "-S", "+train.recipe.lrr=0.1").returncode == 0
+    assert run("git", "status", "--porcelain", "params.yaml").stdout.strip() == ""
