@@ -15,10 +15,10 @@ __all__ = ["load_params", "UniqueKeyLoader", "DuplicateKeyError", "ExpansionErro
 
 #: The most values (mappings, lists and scalars; an alias counts as everything its anchor holds)
 #: a params document may hold. params.yaml holds under a thousand; an alias-free file under
-#: :data:`MAX_PARAMS_BYTES` about 500,000 at most. Nested aliases ("billion laughs": ten aliases
-#: of ten aliases of ...) make a few lines stand for 10^9 values, which every later step (the
-#: recipe merge, the schema, an error's repr) would copy: such a document is refused once
-#: composed, before anything is built from it.
+#: :data:`MAX_PARAMS_BYTES` can hold about 500,000 and is refused past the bound too. Nested
+#: aliases ("billion laughs": ten aliases of ten aliases of ...) make a few lines stand for 10^9
+#: values, which every later step (the recipe merge, the schema, an error's repr) would copy:
+#: such a document is refused once composed, before anything is built from it.
 MAX_PARAMS_VALUES = 100_000
 
 
@@ -110,9 +110,9 @@ class UniqueKeyLoader(yaml.SafeLoader):
         if node is not None:
             size = expanded_sizes(node, MAX_PARAMS_VALUES)
             if size[id(node)] > MAX_PARAMS_VALUES:
-                raise ExpansionError(f"{_key_of(node, size, MAX_PARAMS_VALUES)}: its YAML aliases expand the "
-                                     f"document past {MAX_PARAMS_VALUES} values (params.yaml holds under a thousand); "
-                                     f"write the values out or use fewer nested aliases")
+                raise ExpansionError(f"{_key_of(node, size, MAX_PARAMS_VALUES)}: more than {MAX_PARAMS_VALUES} "
+                                     "values once the YAML aliases are expanded (params.yaml holds under a thousand; "
+                                     "an alias repeats everything its anchor holds)")
         return node
 
 
