@@ -407,7 +407,7 @@ def test_load_world_runs_under_its_own_longer_time_out(small_params, tmp_path):
     msg = _run_collector(small_params, carla_fake.make_module(load_seconds=1.0))
     assert msg == ("error: carla: load_world Town01 (time-out 0.5 s) at 127.0.0.1:2000: time-out of 500ms while "
                    "waiting for the simulator, make sure the simulator is ready and connected to 127.0.0.1:2000; a "
-                   "map that loads slower needs a longer datasets.<ds>.carla.load_world_timeout_s")
+                   "map that loads slower needs a longer datasets.A.carla.load_world_timeout_s")
     assert not (tmp_path / "rec2" / "manifest.json").exists()
 
 

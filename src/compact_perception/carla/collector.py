@@ -111,10 +111,11 @@ def check_towns(client: Any, maps: list[str], where: str) -> None:
         raise CarlaError(f"carla: the server at {where} has no map {', '.join(missing)} (it has {', '.join(have) or 'none'})")
 
 
-def load_town(client: Any, name: str, where: str, timeout_s: float, load_timeout_s: float, fresh: bool = False) -> Any:
+def load_town(client: Any, name: str, where: str, timeout_s: float, load_timeout_s: float, fresh: bool = False,
+              timeout_key: str = "datasets.<ds>.carla.load_world_timeout_s") -> Any:
     """The world with map ``name``, loaded if it is not the current one (or ``fresh``: always,
     which clears the actors a session cut short left behind). The load runs under the client
-    time-out ``load_timeout_s``; ``timeout_s`` is restored afterwards."""
+    time-out ``load_timeout_s`` (the params key ``timeout_key``); ``timeout_s`` is restored afterwards."""
     with server_step("get_world", where):
         world = client.get_world()
         current = _map_name(world.get_map().name)
@@ -122,7 +123,7 @@ def load_town(client: Any, name: str, where: str, timeout_s: float, load_timeout
         client.set_timeout(float(load_timeout_s))
         try:
             with server_step(f"load_world {name} (time-out {load_timeout_s:g} s)", where,
-                             "a map that loads slower needs a longer datasets.<ds>.carla.load_world_timeout_s"):
+                             f"a map that loads slower needs a longer {timeout_key}"):
                 world = client.load_world(name)
         finally:
             client.set_timeout(float(timeout_s))
@@ -370,7 +371,8 @@ def collect(carla: Any, params: Any, dataset_id: str, root: str, host: str, port
     recorded = 0
     layers_of: dict[str, bev.Layers] = {}
     for ep in sorted((e for e in episodes if e.index in todo), key=lambda e: (e.map, e.index)):
-        world = load_town(client, ep.map, where, cs.timeout_s, cs.load_world_timeout_s, fresh=not layers_of)
+        world = load_town(client, ep.map, where, cs.timeout_s, cs.load_world_timeout_s, fresh=not layers_of,
+                          timeout_key=f"datasets.{dataset_id}.carla.load_world_timeout_s")
         if ep.map not in layers_of:
             with server_step(f"generate_waypoints ({ep.map})", where):
                 layers_of = {ep.map: bev.map_layers(world.get_map().generate_waypoints(WAYPOINT_SPACING_M),
