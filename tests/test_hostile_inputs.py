@@ -106,7 +106,7 @@ def test_an_integer_too_long_to_read_is_one_line(tmp_path):
     ("seed", list(range(50_000)), "(got [0, 1, 2, 3, ...] (list of 50000 items))"),
     ("train.device", "x" * 300_000, "(300000 characters)"),
     ("world.conditions.times", ["never"] * 50_000, "; and 49990 more"),
-])
+], ids=["a-long-list", "a-long-string", "many-problems"])
 def test_every_params_error_is_bounded_in_length(key, value, shown):
     """A value under the expansion bound but long (a list of 50,000 items, a 300,000-character
     string, 50,000 bad items) is shown cut, with its size; at most ten problems are named."""
