@@ -11,7 +11,10 @@ and every params value that shaped the run, resolved at that scale
 (:func:`compact_perception.report.plateau.settings_at`), with the commit (``git describe
 --always --dirty`` of DIR unless ``--commit`` says more), the machine and the command. The
 ``report`` stage reads the file (a dependency in dvc.yaml) and says which of today's settings
-differ from a recorded run's.
+differ from a recorded run's. Every run is checked by type and range against the record's schema
+(``compact_perception.report.plateau_schema``, the one the report reads with) before anything is
+written: a summary or metrics file that says otherwise is one line naming it and the field, exit
+status 1, and the file at ``--out`` is left as it was.
 """
 from __future__ import annotations
 

@@ -43,7 +43,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--dataset", required=True, choices=dataset_ids())
     ap.add_argument("--params", default="params.yaml")
     args = ap.parse_args(argv)
-    params = start(args.params)
+    params = start(args.params, workers=("train.parallel_runs",), device=True)
     cache = Path("data/cache") / args.dataset
     try:  # bad input (a truncated cache, no checkpoint, a read-only results/): one line naming the file,
         runs = dataset_runs(params, args.dataset)  # exit 1, before any write

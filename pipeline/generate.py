@@ -14,7 +14,7 @@ from pathlib import Path
 
 from compact_perception.core.catalog import sim_dataset_ids
 from compact_perception.core.config import ParamsError
-from compact_perception.core.errors import os_error_line
+from compact_perception.core.errors import RunError, os_error_line
 
 from ._common import start
 
@@ -26,7 +26,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default="data/raw", help="parent of the dataset directory")
     ap.add_argument("--figure-dir", default="reports/figures")
     args = ap.parse_args(argv)
-    params = start(args.params)
+    params = start(args.params, workers=("world.workers",))
     dp = getattr(params.datasets, args.dataset)
     if dp.source == "authors":
         from compact_perception.authors import describe_authors_dataset
@@ -48,7 +48,7 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         out = generate_dataset(params, args.dataset, Path(args.out) / args.dataset)
-    except ParamsError as err:
+    except (ParamsError, RunError) as err:  # RunError: the free disk cannot hold the dataset
         sys.exit(f"error: {err}")
     except OSError as err:  # a full disk: atomic_dir has removed the partial dataset
         sys.exit(f"error: {os_error_line(err, Path(args.out) / args.dataset)}")

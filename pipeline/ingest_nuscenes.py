@@ -22,7 +22,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sim-root", default="data/raw/nuscenes_sim", help="dataroot used when datasets.nuscenes.dataroot is null")
     ap.add_argument("--out", default="data/cache/nuscenes")
     args = ap.parse_args(argv)
-    params = start(args.params)
+    params = start(args.params, workers=("preprocess.workers",))
     try:
         ingest_from_params(params, args.out, sim_root=args.sim_root)
     except NuScenesInputError as err:

@@ -25,7 +25,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cache-root", default="data/cache")
     ap.add_argument("--figures", default="reports/figures")
     args = ap.parse_args(argv)
-    params = start(args.params)
+    params = start(args.params, workers=("preprocess.workers",))
     try:
         preprocess_dataset(
             params,

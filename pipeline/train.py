@@ -65,7 +65,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--cache", type=Path, default=None, help="default data/cache/<dataset>")
     ap.add_argument("--out", type=Path, default=None, help="one run's folder (default: core.layout's)")
     args = ap.parse_args(argv)
-    params = start(args.params)
+    params = start(args.params, workers=("train.parallel_runs", "train.num_workers"), device=True)
     try:
         compiled = params.train.compile
         for m in params.model_ids:  # every recipe's and arm's weighting settings, before anything is written

@@ -2,6 +2,9 @@
 
 Sensor data is built in CARLA's documented buffer formats (BGRA images, 24-bit depth, tag in
 red, packed 13-byte DVS events, 24-byte semantic LiDAR points), so the real conversions run on it.
+A server that does not answer in time raises what the real client raises: a plain ``RuntimeError``
+with the client's own message (:func:`timeout_error`). Every ``stop`` and ``destroy`` is logged
+in ``World.log`` in call order.
 """
 from __future__ import annotations
 
@@ -12,6 +15,14 @@ from dataclasses import dataclass, field
 from typing import Any, Callable
 
 import numpy as np
+
+
+def timeout_error(client: "Client") -> RuntimeError:
+    """The real client's exception for a server that does not answer within the client's time-out
+    (LibCarla's ``rpc::timeout`` as the Python client raises it, e.g. from ``world.tick()``)."""
+    client.gone = client.gone_after_timeout
+    return RuntimeError(f"time-out of {int(round(client.timeout * 1000))}ms while waiting for the simulator, make sure "
+                        f"the simulator is ready and connected to {client.host}:{client.port}")
 
 
 @dataclass
@@ -122,17 +133,25 @@ class Actor:
         self.callback = callback
 
     def stop(self) -> None:
+        if self.world.client.gone:
+            raise timeout_error(self.world.client)
         self.callback = None
+        self.world.log.append(("stop", self.type_id, self.id))
 
     def destroy(self) -> None:
+        if self.world.client.gone:
+            raise timeout_error(self.world.client)
         self.destroyed = True
+        self.world.log.append(("destroy", self.type_id, self.id))
         self.world.actors.remove(self)
 
     def start(self) -> None:
         pass
 
     def go_to_location(self, loc: Any) -> None:
-        pass
+        if not isinstance(loc, Location):  # the real client: Boost.Python.ArgumentError, a TypeError
+            raise TypeError(f"Python argument types in WalkerAIController.go_to_location did not match: {loc!r}")
+        self.target = loc
 
 
 class TrafficLight(Actor):
@@ -206,6 +225,8 @@ class World:
         self.actors: ActorList = ActorList()
         self.settings = Settings()
         self.weather = None
+        self.log: list[tuple[str, str, int]] = []
+        self.navigation_calls = 0
         self.actors.append(TrafficLight(self, 20.0, 0.0, "Red"))
 
     def get_map(self) -> Map:
@@ -215,6 +236,8 @@ class World:
         return Settings(self.settings.synchronous_mode, self.settings.fixed_delta_seconds)
 
     def apply_settings(self, s: Settings) -> None:
+        if self.client.gone:
+            raise timeout_error(self.client)
         self.settings = s
 
     def set_weather(self, w: Any) -> None:
@@ -226,8 +249,11 @@ class World:
     def get_actors(self) -> ActorList:
         return ActorList(self.actors)
 
-    def get_random_location_from_navigation(self) -> Location:
-        return Location(5.0, 8.0, 0.5)
+    def get_random_location_from_navigation(self) -> Location | None:
+        """A place on the sidewalks; ``None`` (as the real one may give) every ``Client.navigation_none``-th call."""
+        self.navigation_calls += 1
+        every = self.client.navigation_none
+        return None if every and self.navigation_calls % every == 0 else Location(5.0, 8.0, 0.5)
 
     def try_spawn_actor(self, bp: Blueprint, tr: Transform, attach_to: Actor | None = None) -> Actor | None:
         if attach_to is None and any(a.parent is None and a.get_transform().location == tr.location
@@ -238,11 +264,17 @@ class World:
         return a
 
     def spawn_actor(self, bp: Blueprint, tr: Transform, attach_to: Actor | None = None) -> Actor:
+        if self.client.spawn_timeout == bp.id:
+            raise timeout_error(self.client)
         a = self.try_spawn_actor(bp, tr, attach_to)
         assert a is not None
         return a
 
     def tick(self, timeout: float = 10.0) -> int:
+        if self.client.tick_timeout is not None and self.frame + 1 == self.client.tick_timeout:
+            raise timeout_error(self.client)
+        if self.client.gone:
+            raise timeout_error(self.client)
         self.frame += 1
         fails = self.client.fail
         for a in list(self.actors):
@@ -276,17 +308,28 @@ class TrafficManager:
 
 
 class Client:
-    #: class-level knobs a test sets: is there a server, its version, its maps, a sensor that stops
+    #: class-level knobs a test sets: is there a server, its version, its maps, a sensor that stops;
+    #: the simulation frame whose tick times out, the blueprint whose spawn_actor times out, how
+    #: many seconds a map takes to load (a load under a shorter time-out times out), every how
+    #: many calls the navigation mesh has no place (None); ``gone``: after the first time-out the
+    #: server answers nothing more
     server: bool = True
     version: str = "0.9.10"
     maps: tuple[str, ...] = ("Town01", "Town02", "Town03", "Town04", "Town05")
     fail: dict | None = None
+    tick_timeout: int | None = None
+    spawn_timeout: str | None = None
+    load_seconds: float = 0.0
+    navigation_none: int = 0
+    gone_after_timeout: bool = False
     instances: list["Client"] = []
 
     def __init__(self, host: str, port: int):
         self.host, self.port, self.timeout = host, port, None
         self.world: World | None = None
         self.loads: list[str] = []
+        self.load_timeouts: list[float] = []
+        self.gone = False
         type(self).instances.append(self)
 
     def set_timeout(self, seconds: float) -> None:
@@ -309,6 +352,9 @@ class Client:
         return self.world
 
     def load_world(self, name: str) -> World:
+        self.load_timeouts.append(self.timeout)
+        if self.timeout < self.load_seconds:
+            raise timeout_error(self)
         self.loads.append(name)
         self.world = World(self, name)
         return self.world

@@ -8,6 +8,7 @@ never needed (nor imported) here.
 from __future__ import annotations
 
 import json
+import re
 import struct
 import sys
 from pathlib import Path
@@ -331,3 +332,100 @@ def test_generate_stage_with_source_carla(small_params, tmp_path):
     (Path(p.datasets.A.carla.root) / "manifest.json").unlink()
     with pytest.raises(SystemExit, match=r"^error: .*incomplete \(no manifest.json\)"):
         generate.main(["--dataset", "A", "--params", str(small_params), "--out", str(out), "--figure-dir", str(figures)])
+
+
+# ----------------------------------------------------------------------------- a server that times out
+def _run_collector(params: Path, mod) -> str | None:
+    """pipeline.collect_carla against the stand-in ``mod``: its exit message (None on success)."""
+    from pipeline import collect_carla
+
+    sys.modules["carla"] = mod
+    try:
+        collect_carla.main(["--dataset", "A", "--params", str(params)])
+    except SystemExit as exc:
+        assert isinstance(exc.code, str) and "\n" not in exc.code and "Traceback" not in exc.code, exc.code
+        return exc.code
+    finally:
+        del sys.modules["carla"]
+    return None
+
+
+def _stopped_before_destroyed(world) -> None:
+    """Every walker's AI controller was stopped before it was destroyed, and every actor spawned is gone."""
+    for kind, type_id, ident in world.log:
+        if kind == "destroy" and type_id == "controller.ai.walker":
+            assert ("stop", type_id, ident) in world.log[:world.log.index((kind, type_id, ident))], world.log
+    assert any(t == "controller.ai.walker" for _, t, _ in world.log)
+    assert [a.type_id for a in world.actors] == ["traffic.traffic_light"]
+
+
+@pytest.mark.parametrize("knobs, step", [
+    ({"tick_timeout": 110}, r"episode 1 \(Town01\): tick \(frame town01_ep0001_000\)"),
+    ({"tick_timeout": 102}, r"episode 0 \(Town01\): tick \(warm-up\)"),
+    ({"spawn_timeout": "sensor.lidar.ray_cast_semantic"}, r"episode 0 \(Town01\): spawn_actor \(sensor lidar\)"),
+])
+def test_a_client_time_out_is_one_line_naming_step_host_and_port_and_the_rerun_resumes(small_params, knobs, step):
+    """The client's RuntimeError ("time-out of 10000ms while waiting for the simulator ...") from
+    tick or spawn_actor was a traceback. Now: one line naming the step, host and port, exit
+    status 1; the cut episode's walkers stopped before destroyed, everything spawned destroyed and
+    synchronous mode off; on disk what the documented resume expects (the plan, the complete
+    episodes, no manifest), and the same command completes the set."""
+    p = load_params(small_params)
+    root = Path(p.datasets.A.carla.root)
+    mod = carla_fake.make_module(**knobs)
+    msg = _run_collector(small_params, mod)
+    assert re.fullmatch(rf"error: carla: {step} at 127\.0\.0\.1:2000: time-out of 200ms while waiting for the "
+                        r"simulator, make sure the simulator is ready and connected to 127\.0\.0\.1:2000; complete "
+                        r"episodes are kept: rerun the same command to resume", msg), msg
+    world = mod.Client.instances[0].world
+    _stopped_before_destroyed(world)
+    assert not world.settings.synchronous_mode
+    assert (root / "plan.json").is_file() and not (root / "manifest.json").exists()
+    done = sorted(f.name for f in (root / "episodes").glob("*.json")) if (root / "episodes").exists() else []
+    kept = {fid for d in done for fid in json.loads((root / "episodes" / d).read_text())["frames"]}
+    assert len(done) == (1 if "frame town01_ep0001" in step else 0)
+    assert Recording(root, "A", plan_document(p, "A")).open() and {
+        f.stem for f in (root / "frames").glob("*.npz")} == kept      # the cut episode's frames are dropped
+    ok = carla_fake.make_module()
+    assert _run_collector(small_params, ok) is None
+    assert json.loads((root / "manifest.json").read_text())["splits"]["train"]
+    assert len(list((root / "frames").glob("*.npz"))) == 5
+    _stopped_before_destroyed(ok.Client.instances[0].world)
+
+
+def test_load_world_runs_under_its_own_longer_time_out(small_params, tmp_path):
+    """``load_world`` ran under the client's 10 s time-out; a map load often takes longer. It now
+    runs under ``carla.load_world_timeout_s`` (the tick's time-out restored after), and one that
+    times out anyway names the step, the server and the param."""
+    slow = carla_fake.make_module(load_seconds=1.0)                   # a town that takes 1 s to load
+    assert _run_collector(small_params, slow) is None
+    assert slow.Client.instances[0].load_timeouts == [120.0, 120.0]  # Town01, then Town02
+    assert slow.Client.instances[0].timeout == 0.2                    # the tick's own time-out again
+    d = yaml.safe_load(small_params.read_text())
+    d["datasets"]["A"]["carla"].update(root=str(tmp_path / "rec2"), load_world_timeout_s=0.5)
+    small_params.write_text(yaml.safe_dump(d))
+    msg = _run_collector(small_params, carla_fake.make_module(load_seconds=1.0))
+    assert msg == ("error: carla: load_world Town01 (time-out 0.5 s) at 127.0.0.1:2000: time-out of 500ms while "
+                   "waiting for the simulator, make sure the simulator is ready and connected to 127.0.0.1:2000; a "
+                   "map that loads slower needs a longer datasets.A.carla.load_world_timeout_s")
+    assert not (tmp_path / "rec2" / "manifest.json").exists()
+
+
+def test_a_server_gone_is_not_asked_to_clean_up_call_after_call(small_params, caplog):
+    """A server that stopped answering: each clean-up call would wait its full time-out. The first
+    one that fails ends the clean-up with one warning; the error is still the step's one line."""
+    mod = carla_fake.make_module(tick_timeout=102, gone_after_timeout=True)
+    msg = _run_collector(small_params, mod)
+    assert msg.startswith("error: carla: episode 0 (Town01): tick (warm-up) at 127.0.0.1:2000: time-out of 200ms")
+    assert mod.Client.instances[0].world.log == []                    # nothing more was asked of it
+    warnings = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert len(warnings) == 1 and "did not answer while cleaning up" in warnings[0], warnings
+
+
+def test_a_walker_the_navigation_mesh_gives_no_place_to_go_stands(small_params):
+    """``get_random_location_from_navigation()`` may return None: the walker's controller was
+    sent to None (the real client's ArgumentError); now it stands where it was spawned."""
+    p = load_params(small_params)
+    mod = carla_fake.make_module(navigation_none=2)                   # every second call: no place
+    assert collect(mod, p, "A", p.datasets.A.carla.root, "127.0.0.1", 2000) == 5
+    _stopped_before_destroyed(mod.Client.instances[0].world)

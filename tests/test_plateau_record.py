@@ -158,12 +158,12 @@ def test_the_script_and_the_reader_refuse_bad_input_in_one_line(tmp_path: Path) 
     assert done.returncode == 1 and "--models: ['nope']" in done.stderr and "Traceback" not in done.stderr
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps({"version": 1, "scale": "full", "runs": [{"dataset": "A", "model": "chen_bev"}]}))
-    with pytest.raises(ReportInputError, match=r"bad.json: runs\[0\].seed: expected int"):
+    with pytest.raises(ReportInputError, match=r"bad.json: runs\[0\].seed: missing \(expected an integer of at least 0\)"):
         load_record(bad)
     good = {"dataset": "A", "model": "chen_bev", "seed": 0, "epochs_run": 25, "best_epoch": 16, "max_epochs": 100,
             "stop_reason": "plateau", "train_seconds": 1.0, "floor_margin": {"iou_bevp": 0.1}, "settings": {}}
     bad.write_text(json.dumps({"version": 1, "scale": "full", "runs": [{**good, "model": "segformer"}]}))
-    with pytest.raises(ReportInputError, match=r"bad.json: runs\[0\].model: 'segformer' is none of"):
+    with pytest.raises(ReportInputError, match=r"bad.json: runs\[0\].model: expected one of \[.*\] \(got 'segformer'\)"):
         load_record(bad)
     bad.write_text(json.dumps({"version": 1, "scale": "huge", "runs": [good]}))
     with pytest.raises(ReportInputError, match=r"bad.json: scale: expected one of"):
@@ -177,6 +177,39 @@ def test_the_script_and_the_reader_refuse_bad_input_in_one_line(tmp_path: Path) 
     with pytest.raises(ReportInputError, match="bad.json: not valid JSON"):
         load_record(bad)
     assert load_record(tmp_path / "none.json") is None
+
+
+@pytest.mark.parametrize("file, key, value, problem", [
+    ("summary", "epochs_run", "three", "epochs_run: expected an integer of at least 1 (got 'three')"),
+    ("summary", "best_epoch", 30, "best_epoch: expected below epochs_run (25) (got 30)"),
+    ("summary", "epochs_run", 250, "epochs_run: expected at most max_epochs (100) (got 250)"),
+    ("summary", "stop_reason", "bored", "stop_reason: expected 'plateau' or 'max_epochs' (got 'bored')"),
+    ("summary", "train_seconds", float("nan"), "train_seconds: expected a finite number of at least 0 (got nan)"),
+    ("metrics", "floor_margin", {"iou_bevp": "high"}, "floor_margin: expected a non-empty mapping of metric name "
+                                                      "to a finite number (got {'iou_bevp': 'high'})"),
+])
+def test_a_run_that_lies_is_refused_before_the_record_is_written(tmp_path: Path, file, key, value, problem) -> None:
+    """``epochs_run: "three"`` in a summary exited 0, overwrote the tracked record with one the report
+    refused, with a logging traceback on the way; a non-numeric margin was a ValueError traceback.
+    The writer and the reader check through one schema: the reader refuses the same value in the
+    same words, so a record the script writes is one the report reads."""
+    _finished_tree(tmp_path / "copy", {})
+    name = {"summary": "runs/A/chen_bev/seed0/summary.json", "metrics": "results/A/chen_bev/seed0/metrics.json"}[file]
+    path = tmp_path / "copy" / name
+    path.write_text(json.dumps({**json.loads(path.read_text()), key: value}))
+    out = tmp_path / "full_plateau.json"
+    out.write_bytes((ROOT / "benchmarks/records/full_plateau.json").read_bytes())
+    before = out.read_bytes()
+    done = _script("--root", str(tmp_path / "copy"), "--out", str(out))
+    assert done.returncode == 1
+    assert done.stderr.strip().splitlines() == [f"error: {path}: {problem}"], done.stderr
+    assert out.read_bytes() == before                                 # the tracked record untouched
+    good = json.loads(before)
+    good["runs"][3][key] = value                                   # chen_bev: 25 of 100 epochs, as above
+    out.write_text(json.dumps(good))
+    with pytest.raises(ReportInputError) as exc:
+        load_record(out)
+    assert str(exc.value) == f"{out}: runs[3].{problem}"
 
 
 def test_the_committed_record_reads_and_the_report_stage_depends_on_it() -> None:

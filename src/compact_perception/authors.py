@@ -82,6 +82,7 @@ from tqdm import tqdm
 from .core.cache import write_cache
 from .dvs import dvs_colour_to_image
 from .core.errors import RecordError
+from .core.machine import bounded
 from .geometry import VIEWS
 
 log = logging.getLogger(__name__)
@@ -440,7 +441,9 @@ def _tasks(plan: AuthorsPlan, size: int) -> dict[str, list[AuthorsJob]]:
 
 
 def _pool(workers: int) -> Any:
-    """A fork pool for ``workers`` > 1, else a null context (work runs in this process)."""
+    """A fork pool of ``workers`` (at most the usable cores) when that is more than one, else a null
+    context (work runs in this process)."""
+    workers = bounded(workers)
     return mp.get_context("fork").Pool(workers) if workers > 1 else contextlib.nullcontext(None)
 
 

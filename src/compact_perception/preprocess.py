@@ -36,6 +36,7 @@ from .authors import ingest_authors
 from .core.cache import write_cache
 from .core.classes import CARLA_PALETTE, palette_to_index
 from .core.config import Params, PreprocessParams
+from .core.machine import bounded
 from .dvs import events_to_image
 from .core.errors import RecordError  # re-exported: ``from .preprocess import RecordError`` keeps working
 from .lidar import ls_ground_truth, topview_15l
@@ -185,7 +186,7 @@ def preprocess_sim(raw_dir: str | os.PathLike, out_dir: str | os.PathLike, datas
         "views": list(spec.views),
         "preprocess": pp.model_dump(),
     }
-    workers = max(1, int(pp.workers))
+    workers = max(1, bounded(pp.workers))  # at most the usable cores (core.machine)
     if workers == 1:
         splits = {s: iter_preprocessed(raw_dir, manifest["splits"][s], spec, pp, None, f"{dataset_id} {s}") for s in SPLITS}
         return write_cache(out_dir, splits, meta)

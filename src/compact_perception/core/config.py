@@ -35,7 +35,8 @@ from __future__ import annotations
 from .params_base import (MAX_BATCH, MAX_FRAMES, MAX_SAVED_PREDICTIONS, MAX_SCENES, MAX_WORKERS, SCALES,
                           ScaleName, Scaled, Strict)
 from .params_errors import ParamsError, format_error
-from .params_file import MAX_PARAMS_BYTES, DuplicateKeyError, UniqueKeyLoader, load_params
+from .params_file import (MAX_PARAMS_BYTES, MAX_PARAMS_VALUES, DuplicateKeyError, ExpansionError, UniqueKeyLoader,
+                          load_params)
 from .params_schema import (DATASET_IDS, TOWNS, AuthorsSplits, BenchmarkParams, CameraParams, CarlaSource,
                             ConditionParams, DatasetsParams, DvsParams, EvalParams, LidarParams, NuScenesParams,
                             Params, PreprocessParams, SimDatasetParams, SplitRatio, StudyParams, TrainingBudget,
@@ -45,7 +46,8 @@ from .recipe import ModelRecipe, check_lr_floor, merge_recipe
 __all__ = [
     "Strict", "Scaled", "ScaleName", "SCALES", "MAX_FRAMES", "MAX_SCENES", "MAX_WORKERS", "MAX_BATCH",
     "MAX_SAVED_PREDICTIONS", "ParamsError", "format_error", "load_params", "parse_params", "UniqueKeyLoader",
-    "DuplicateKeyError", "MAX_PARAMS_BYTES", "DATASET_IDS", "TOWNS", "AuthorsSplits", "BenchmarkParams",
+    "DuplicateKeyError", "ExpansionError", "MAX_PARAMS_BYTES", "MAX_PARAMS_VALUES", "DATASET_IDS", "TOWNS",
+    "AuthorsSplits", "BenchmarkParams",
     "CameraParams", "CarlaSource", "ConditionParams", "DatasetsParams", "DvsParams", "EvalParams", "LidarParams",
     "NuScenesParams", "Params", "PreprocessParams", "SimDatasetParams", "SplitRatio", "StudyParams",
     "TrainingBudget", "TrainParams", "WorldParams", "ModelRecipe", "check_lr_floor", "merge_recipe",

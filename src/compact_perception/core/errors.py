@@ -1,6 +1,7 @@
 """Error classes shared across modules (no imports of this package, so no import cycles)."""
 from __future__ import annotations
 
+import errno
 import pickle
 import re
 
@@ -18,13 +19,37 @@ class NonFinite(ArithmeticError):
     large lr). The training loop turns it into a :class:`RunError` naming the run and the epoch."""
 
 
+#: The OS's reasons a file could not be read or written (a full disk, a quota, a read-only or
+#: vanished folder, no permission): when the OS names no file, the folder a stage writes is blamed.
+STORAGE_ERRNOS: frozenset[int] = frozenset(
+    getattr(errno, name) for name in ("ENOSPC", "EDQUOT", "EROFS", "EACCES", "EPERM", "EFBIG", "EIO", "ENOENT",
+                                      "ENOTDIR", "EISDIR", "EEXIST", "ENAMETOOLONG", "ESTALE") if hasattr(errno, name))
+
+
+def failed_call(err: BaseException) -> str:
+    """The call an exception came from (its innermost frame, ``module.function``), to name the
+    operation when the OS names no file."""
+    tb = err.__traceback__
+    if tb is None:
+        return type(err).__name__
+    while tb.tb_next is not None:
+        tb = tb.tb_next
+    code = tb.tb_frame.f_code
+    return f"{tb.tb_frame.f_globals.get('__name__', '?')}.{getattr(code, 'co_qualname', code.co_name)}"
+
+
 def os_error_line(err: OSError, where: object, doing: str = "write") -> str:
     """One line for a failed read or write (a full disk, a read-only folder): the file the OS
     names, else ``where``, and the OS's reason (``No space left on device``). An OSError raised
-    with a message of its own (``FileNotFoundError("<file>: no best checkpoint")``) is that message."""
+    with a message of its own (``FileNotFoundError("<file>: no best checkpoint")``) is that message.
+    An error that is not a file's (a broken pipe to a worker process, no memory to fork) and names
+    no file is not blamed on ``where``: the line names the call that failed."""
     if err.errno is None and not err.filename:
         return " ".join(str(err).split())
-    return f"{err.filename or where}: could not {doing} ({err.strerror or err})"
+    reason = err.strerror or str(err)
+    if err.filename or err.errno in STORAGE_ERRNOS:
+        return f"{err.filename or where}: could not {doing} ({reason})"
+    return f"{failed_call(err)} failed ({reason}; not a file of {where})"
 
 
 #: Words of torch's advice on a refused checkpoint that would have the user load it unsafely

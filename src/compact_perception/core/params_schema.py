@@ -109,6 +109,8 @@ class CarlaSource(Strict):
     host: str = Field(min_length=1, description="CARLA server address")
     port: int = Field(ge=1, le=65535, description="CARLA server RPC port (CarlaUE4.sh -carla-rpc-port)")
     timeout_s: float = Field(gt=0.0, le=600.0, description="connection timeout and each sensor's timeout per tick")
+    load_world_timeout_s: float = Field(gt=0.0, le=3600.0, description="the client's time-out while the server loads "
+                                        "a town (a large map takes longer than a tick)")
     fixed_delta_s: float = Field(gt=0.0, le=0.5, description="synchronous simulation step; "
                                  "world.dvs.step_s / fixed_delta_s ticks make one recorded frame")
     frames_per_episode: int = Field(ge=1, le=10000, description="consecutive frames of one drive (episode length)")

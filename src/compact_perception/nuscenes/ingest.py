@@ -65,6 +65,7 @@ from tqdm import tqdm
 from compact_perception.core.classes import NUSCENES_NAMES
 from compact_perception.core.config import Params, PreprocessParams
 from compact_perception.core.cache import write_cache
+from compact_perception.core.machine import bounded
 from compact_perception.geometry import VIEWS, topview_cell_centres, topview_index
 from compact_perception.lidar import ls_ground_truth, topview_15l
 from compact_perception.nuscenes import (
@@ -339,6 +340,7 @@ def iter_frames(nusc: Any, pairs: Sequence[tuple[str, str]], resolution: int, pr
     """
     _WORKER_STATE.update(nusc=nusc, resolution=resolution, pre=pre)
     bar = tqdm(total=len(pairs), desc=desc, unit="sample", leave=False)
+    workers = bounded(workers)  # at most the usable cores (core.machine)
     if workers <= 1 or len(pairs) < 2:
         frames: Iterator[dict] = map(_ingest_pair, pairs)
         for frame in frames:

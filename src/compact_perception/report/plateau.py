@@ -19,15 +19,14 @@ from pathlib import Path
 from typing import Any, Mapping, Optional, Sequence
 
 from ..core.params_base import SCALES
-from ..core.catalog import DATASETS, MODELS, STOP_PLATEAU, metric_of
+from ..core.catalog import MODELS, STOP_PLATEAU, metric_of
 from ..core.layout import run_paths
 from .collect import ReportInputError, read_json
+from .plateau_schema import RECORD_VERSION, RUN_KEYS, SUMMARY_KEYS, record_problem, run_problem
 from .schema import DATASET_LABEL, METRIC_TASK, ROW_LABEL
 
 __all__ = ["RECORD_VERSION", "PlateauRun", "PlateauRecord", "PlateauEvidence", "settings_at", "changed_settings",
            "record_runs", "load_record", "evidence", "recorded_sentence"]
-
-RECORD_VERSION = 1
 
 #: Settings that change no result (the pipeline's promise: any worker, process or run count gives
 #: the same bytes; which test frame a figure shows, how many predictions are saved).
@@ -36,16 +35,9 @@ NEUTRAL_KEYS: tuple[str, ...] = ("world.workers", "preprocess.workers", "train.n
 
 _MISSING = object()
 
-#: The keys each run of a record must have, with their types.
-RUN_KEYS: dict[str, tuple[type, ...]] = {
-    "dataset": (str,), "model": (str,), "seed": (int,), "epochs_run": (int,), "best_epoch": (int,),
-    "max_epochs": (int,), "stop_reason": (str,), "train_seconds": (int, float), "floor_margin": (dict,),
-    "settings": (dict,)}
-
-
 @dataclass(frozen=True)
 class PlateauRun:
-    """One recorded run (the keys of :data:`RUN_KEYS`)."""
+    """One recorded run (the keys of :data:`~.plateau_schema.RUN_KEYS`)."""
 
     dataset: str
     model: str
@@ -135,7 +127,10 @@ def record_runs(root: Path, params: Any, dataset: str, seeds: Mapping[str, Seque
     """The record of the finished runs under ``root`` (``runs/<ds>/<model>/seed<k>/summary.json``
     and ``results/<ds>/<model>/seed<k>/metrics.json``) of each model of ``seeds`` and its seeds on
     ``dataset``, trained with ``params`` (its own ``scale``); ``provenance``: ``commit``,
-    ``machine``, ``command``. Raises :class:`~.collect.ReportInputError` naming a missing file or key."""
+    ``machine``, ``command``. Every run is checked against the record's schema
+    (:mod:`.plateau_schema`, the one :func:`load_record` reads with) before the record is returned:
+    a missing file, a missing key or a value of the wrong type or range raises
+    :class:`~.collect.ReportInputError` naming the file and the field, so nothing is written."""
     runs = []
     for model, model_seeds in seeds.items():
         settings = settings_at(params, model, dataset, params.scale)
@@ -143,48 +138,43 @@ def record_runs(root: Path, params: Any, dataset: str, seeds: Mapping[str, Seque
             paths = run_paths(dataset, model, seed, root)
             summary_path = paths.run_dir / "summary.json"
             summ, metrics = read_json(summary_path), read_json(paths.metrics_path)
-            margin = metrics.get("floor_margin")
-            if not isinstance(margin, dict):
+            if not isinstance(metrics, dict) or not isinstance(metrics.get("floor_margin"), dict):
                 raise ReportInputError(f"{paths.metrics_path}: no floor_margin (evaluate the run with its floor first)")
-            missing = [k for k in ("epochs_run", "best_epoch", "max_epochs", "stop_reason", "train_seconds")
-                       if summ.get(k) is None]
+            if not isinstance(summ, dict):
+                raise ReportInputError(f"{summary_path}: expected a JSON object")
+            missing = [k for k in SUMMARY_KEYS if summ.get(k) is None]
             if missing:
                 raise ReportInputError(f"{summary_path}: missing {', '.join(missing)}")
-            runs.append({"dataset": dataset, "model": model, "seed": int(seed),
-                         **{k: summ[k] for k in ("epochs_run", "best_epoch", "max_epochs", "stop_reason",
-                                                 "train_seconds")},
-                         "floor_margin": {k: float(v) for k, v in sorted(margin.items())}, "settings": settings})
-    return {"version": RECORD_VERSION, "scale": params.scale,
-            **{k: str(provenance.get(k, "")) for k in ("commit", "machine", "command")}, "runs": runs}
+            for path, data, keys in ((summary_path, summ, SUMMARY_KEYS),
+                                     (paths.metrics_path, metrics, ("floor_margin",))):
+                problem = run_problem(data, keys)
+                if problem:
+                    raise ReportInputError(f"{path}: {problem}")
+            runs.append({"dataset": dataset, "model": model, "seed": int(seed), **{k: summ[k] for k in SUMMARY_KEYS},
+                         "floor_margin": {k: float(v) for k, v in sorted(metrics["floor_margin"].items())},
+                         "settings": settings})
+    record = {"version": RECORD_VERSION, "scale": params.scale,
+              **{k: str(provenance.get(k, "")) for k in ("commit", "machine", "command")}, "runs": runs}
+    problem = record_problem(record)
+    if problem:  # the whole record passes the reader's check too (its seeds, settings and provenance)
+        raise ReportInputError(f"{root}: {problem}")
+    return record
 
 
 def load_record(path: Path) -> Optional[PlateauRecord]:
-    """The record at ``path`` (``None`` where there is none); a malformed one raises
-    :class:`~.collect.ReportInputError` naming the file and key."""
+    """The record at ``path`` (``None`` where there is none); one its schema refuses
+    (:func:`~.plateau_schema.record_problem`) raises :class:`~.collect.ReportInputError` naming
+    the file, the run and the field."""
     path = Path(path)
     if not path.is_file():
         return None
     data = read_json(path)
-    if data.get("version") != RECORD_VERSION:
-        raise ReportInputError(f"{path}: version: expected {RECORD_VERSION}")
-    if data.get("scale") not in SCALES:
-        raise ReportInputError(f"{path}: scale: expected one of {list(SCALES)}")
-    if not isinstance(data.get("runs"), list):
-        raise ReportInputError(f"{path}: runs: expected a list")
-    runs = []
-    for i, run in enumerate(data["runs"]):
-        for key, types in RUN_KEYS.items():
-            value = run.get(key) if isinstance(run, dict) else None
-            if not isinstance(value, types) or isinstance(value, bool):
-                raise ReportInputError(f"{path}: runs[{i}].{key}: expected {' or '.join(t.__name__ for t in types)}")
-        if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in run["floor_margin"].values()):
-            raise ReportInputError(f"{path}: runs[{i}].floor_margin: expected numbers")
-        for key, known in (("dataset", DATASETS), ("model", MODELS)):
-            if run[key] not in known:
-                raise ReportInputError(f"{path}: runs[{i}].{key}: {run[key]!r} is none of {sorted(known)}")
-        runs.append(PlateauRun(**{k: run[k] for k in RUN_KEYS}))
+    problem = record_problem(data)
+    if problem:
+        raise ReportInputError(f"{path}: {problem}")
+    runs = tuple(PlateauRun(**{k: run[k] for k in RUN_KEYS}) for run in data["runs"])
     return PlateauRecord(str(path), data["scale"], str(data.get("commit", "")), str(data.get("machine", "")),
-                         str(data.get("command", "")), tuple(runs))
+                         str(data.get("command", "")), runs)
 
 
 @dataclass(frozen=True)

@@ -27,6 +27,7 @@ from typing import Any, Callable, Sequence
 from tqdm.auto import tqdm
 
 from ..core.errors import os_error_line
+from ..core.machine import bounded
 
 log = logging.getLogger(__name__)
 
@@ -59,8 +60,10 @@ def _call(fn: Callable[..., Any], job: Job) -> tuple[str, Any, str | None]:
 def run_jobs(fn: Callable[..., Any], jobs: Sequence[Job], processes: int, desc: str) -> list[Any]:
     """Run ``fn(*job.args)`` for every job in ``processes`` worker processes (in this process
     when ``processes`` is 1 or there is one job) and return the results in the order of
-    ``jobs``. ``fn`` must be a module-level function (it is pickled by name). Raises
-    :class:`JobError` with the first failing job's message."""
+    ``jobs``. ``fn`` must be a module-level function (it is pickled by name). ``processes`` is
+    bounded by the usable cores (:func:`~..core.machine.bounded`). Raises :class:`JobError` with
+    the first failing job's message."""
+    processes = bounded(processes)
     order = sorted(range(len(jobs)), key=lambda i: -jobs[i].cost)   # stable: equal costs keep their order
     results: dict[str, Any] = {}
     bar = tqdm(total=len(jobs), desc=desc, unit="run")
@@ -69,10 +72,17 @@ def run_jobs(fn: Callable[..., Any], jobs: Sequence[Job], processes: int, desc: 
             for i in order:
                 _collect(_call(fn, jobs[i]), results, bar)
         else:
-            pool = mp.get_context("spawn").Pool(min(processes, len(jobs)))
+            size = min(processes, len(jobs))
+            try:
+                pool = mp.get_context("spawn").Pool(size)
+            except OSError as err:  # a worker that cannot start (Broken pipe, no memory to fork): not a job's file
+                raise JobError(f"{desc}: could not start {size} worker processes ({err.strerror or err})") from None
             try:
                 for out in pool.imap_unordered(_Caller(fn), [jobs[i] for i in order]):
                     _collect(out, results, bar)
+            except OSError as err:  # the pool's pipes (a job's own errors come back as its message)
+                pool.terminate()
+                raise JobError(f"{desc}: lost the worker processes ({err.strerror or err})") from None
             except BaseException:
                 pool.terminate()
                 raise

@@ -13,7 +13,8 @@ Outputs (``out_dir``, a persistent DVC output):
 - ``last.pt``      resumable state (model, optimiser, weighting, schedules, history)
 - ``best.pt``      model weights at the best validation score
 - ``live/``        dvclive logs (``live/plots/metrics/{train,val}/*.tsv``, ``lr``, ``w_*``)
-- ``summary.json`` best epoch, scores, epochs run, wall time; written last (= run complete)
+- ``summary.json`` best epoch, scores, epochs run, wall time, the device and precision it ran on;
+                   written last (= run complete)
 
 :func:`train_run` checks its inputs, then runs these steps over one :class:`~.state.RunState`:
 
@@ -30,6 +31,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import platform
 import random
 import time
 import zlib
@@ -44,6 +46,7 @@ from ..core import catalog, io
 from ..core.config import ModelRecipe, Params
 from ..core.determinism import release_torch_pins, resolve_device, set_determinism, set_threads
 from ..core.errors import RunError
+from ..core.machine import bounded
 from ..data import make_loader, to_device
 from ..losses import de_loss_factor
 from ..models import build_model
@@ -300,13 +303,14 @@ def _open(run: RunState) -> None:
 
     spec, tp = run.spec, run.spec.params.train
     channels = catalog.MODELS[spec.model_id].lidar_channels
+    workers = bounded(tp.num_workers)  # at most the usable cores (core.machine): no result changes
     run.val_loader = make_loader(spec.cache_dir, "val", channels, spec.per_rank_batch, shuffle=False, seed=spec.seed,
-                                 num_workers=tp.num_workers, drop_last=False, distributed=spec.dist.enabled)
+                                 num_workers=workers, drop_last=False, distributed=spec.dist.enabled)
     if run.untrained_score is None:  # the Kaiming-initialised network
         run.untrained_score = selection_score(validate(run))
         log.info("%s/%s untrained val score %.4f", spec.dataset_id, spec.model_id, run.untrained_score)
     run.train_loader = make_loader(spec.cache_dir, "train", channels, spec.per_rank_batch, shuffle=True,
-                                   seed=spec.seed, num_workers=tp.num_workers, drop_last=True,
+                                   seed=spec.seed, num_workers=workers, drop_last=True,
                                    distributed=spec.dist.enabled)
     if spec.dist.is_main:
         run.live = Live(str(spec.paths.live), dvcyaml=False, save_dvc_exp=False)
@@ -373,6 +377,19 @@ def _export_best(run: RunState) -> dict:
     return {"file": spec.paths.onnx.name, "max_abs_diff": float(report["max_abs_diff_all"])}
 
 
+def _device_name(device: torch.device) -> str:
+    """The GPU's name, or the CPU's as the OS names it (``platform.processor()`` is often empty)."""
+    if device.type == "cuda":
+        return torch.cuda.get_device_name(device)
+    try:
+        for line in open("/proc/cpuinfo", encoding="utf-8", errors="replace"):
+            if line.startswith("model name"):
+                return "CPU: " + line.partition(":")[2].strip()
+    except OSError:
+        pass
+    return "CPU: " + (platform.processor() or platform.machine() or "unknown")
+
+
 def _finish(run: RunState) -> dict:
     """The run's summary (written last: the run is complete), the ONNX export of a compact
     network, and ``last.pt`` marked finished."""
@@ -385,6 +402,9 @@ def _finish(run: RunState) -> dict:
         "stop_reason": catalog.STOP_PLATEAU if run.stopped_early else catalog.STOP_CAP,
         "train_seconds": round(run.elapsed(), 2),
         "params": int(sum(p.numel() for p in run.model.parameters())), "world_size": spec.dist.world_size,
+        # where and how it ran: train.device and train.precision as resolved on this machine ("auto" is
+        # not an answer), with the device's name
+        "device": spec.device.type, "device_name": _device_name(spec.device), "precision": run.precision,
         "final_weights": {k: v for k, v in (run.history[-1] if run.history else {}).items() if k.startswith("w_")},
         "digest": spec.digest,
     }

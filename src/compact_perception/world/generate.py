@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 import multiprocessing as mp
+import shutil
 import zlib
 from collections import deque
 from dataclasses import dataclass
@@ -24,6 +25,8 @@ from ..core import io
 from ..core.catalog import sim_dataset_ids
 from ..core.classes import BEV_NAMES, CARLA_NAMES, CARLA_PALETTE, TAG, palette_to_index
 from ..core.config import TOWNS, Params, ParamsError, WorldParams
+from ..core.errors import RunError
+from ..core.machine import bounded
 from ..geometry import VIEWS
 from . import camera as cam
 from .actors import Episode, boxes_to_aabb
@@ -230,8 +233,49 @@ def _in_order(pool: Any, jobs: Iterator[tuple], window: int) -> Iterator[tuple]:
         yield pending.popleft().get()
 
 
+#: Frames rendered (the first episode's first ones) to estimate a dataset's size on disk, and the
+#: manifest's bytes per frame (its id and metadata).
+SAMPLE_FRAMES = 3
+MANIFEST_BYTES_PER_FRAME = 200
+
+
+def estimate_disk(params: Params, dataset_id: str) -> tuple[int, int]:
+    """(about, at least) the bytes a dataset takes on disk: its frame count times the compressed
+    size of its first episode's first frames (their median; 80% of the smallest for "at least",
+    as frames differ by their events and points), plus the manifest. Rendering them costs about
+    a second at 128 px; it changes nothing (an episode is a function of its seed)."""
+    total, _ = episode_count(params, dataset_id)
+    ep = next(iter_episodes(params, dataset_id))
+    sizes = sorted(len(io.npz_bytes({k: v for k, v in rec.items() if k != "meta"}))
+                   for rec in render_episode(params.world, ep["town"], ep["seed"], min(SAMPLE_FRAMES, ep["frames"]),
+                                             params.world.resolution.at(params.scale), episode=ep["index"]))
+    about = total * (sizes[len(sizes) // 2] + MANIFEST_BYTES_PER_FRAME)
+    return about, int(total * 0.8 * sizes[0])
+
+
+def _mb(n: float) -> str:
+    return f"{n / 1e6:,.0f} MB" if n >= 1e6 else f"{n / 1e6:.1f} MB"
+
+
+def check_disk(params: Params, dataset_id: str, out_dir: Path) -> None:
+    """Refuse (:class:`RunError`, one line) a dataset the free disk under ``out_dir`` cannot hold,
+    before anything is written (it was found out after 9.5 s of writing, 1e6 frames onto 20 MB)."""
+    about, at_least = estimate_disk(params, dataset_id)
+    where = out_dir.parent
+    while not where.exists() and where != where.parent:
+        where = where.parent
+    free = shutil.disk_usage(where).free
+    log.info("dataset %s: about %s on disk, %s free", dataset_id, _mb(about), _mb(free))
+    if free < at_least:
+        total, _ = episode_count(params, dataset_id)
+        raise RunError(f"{out_dir}: {total} frames need about {_mb(about)} (at least {_mb(at_least)}, measured on "
+                       f"the first frames), {_mb(free)} free on {where}; free space or lower "
+                       f"datasets.{dataset_id}.frames")
+
+
 def generate_dataset(params: Params, dataset_id: str, out_dir: str | Path) -> Path:
-    """Write the simulated dataset ``dataset_id`` to ``out_dir`` (= data/raw/<ds>) atomically."""
+    """Write the simulated dataset ``dataset_id`` to ``out_dir`` (= data/raw/<ds>) atomically,
+    after checking the free disk can hold it (:func:`check_disk`)."""
     check_dataset_params(params, dataset_id)
     dp = getattr(params.datasets, dataset_id)
     if dp.source != "sim":
@@ -240,6 +284,7 @@ def generate_dataset(params: Params, dataset_id: str, out_dir: str | Path) -> Pa
     S = wp.resolution.at(params.scale)
     total, n_episodes = episode_count(params, dataset_id)
     out_dir = Path(out_dir)
+    check_disk(params, dataset_id, out_dir)
     log.info("dataset %s: %d frames in %d episodes at %dx%d -> %s", dataset_id, total, n_episodes, S, S, out_dir)
     with io.atomic_dir(out_dir) as tmp:
         frames_dir = tmp / "frames"
@@ -251,7 +296,7 @@ def generate_dataset(params: Params, dataset_id: str, out_dir: str | Path) -> Pa
         pix: dict[str, np.ndarray] = {}
         pts: dict[str, np.ndarray] = {}
         bar = tqdm(total=total, desc=f"generate {dataset_id}", unit="frame", leave=False)
-        workers = min(wp.workers, n_episodes)
+        workers = min(bounded(wp.workers), n_episodes)  # at most the usable cores (core.machine)
         pool = mp.get_context("fork").Pool(workers) if workers > 1 else None
         try:
             results = _in_order(pool, jobs, 2 * workers) if pool else map(_episode_job, jobs)
@@ -281,4 +326,4 @@ def generate_dataset(params: Params, dataset_id: str, out_dir: str | Path) -> Pa
     return out_dir
 
 
-__all__ = ["render_episode", "generate_dataset", "plan_episodes", "iter_episodes", "episode_count", "episode_seed", "check_dataset_params", "build_scene", "TAG"]
+__all__ = ["render_episode", "generate_dataset", "estimate_disk", "check_disk", "plan_episodes", "iter_episodes", "episode_count", "episode_seed", "check_dataset_params", "build_scene", "TAG"]
