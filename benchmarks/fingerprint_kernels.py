@@ -44,7 +44,6 @@ import hashlib  # noqa: E402
 import json  # noqa: E402
 import os  # noqa: E402
 import pickle  # noqa: E402
-import platform  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
 import warnings  # noqa: E402
@@ -56,6 +55,7 @@ from torch import Tensor, nn  # noqa: E402
 
 from compact_perception.core.config import load_params  # noqa: E402
 from compact_perception.core.determinism import set_threads  # noqa: E402
+from compact_perception.core.machine import cpu_name  # noqa: E402
 from compact_perception.data import make_loader, to_device  # noqa: E402
 from compact_perception.losses import de_loss_factor, scale_de_loss  # noqa: E402
 from compact_perception.models import DATASET_SPECS, build_model, lidar_channels  # noqa: E402
@@ -67,16 +67,6 @@ DEFAULT_MODELS = ["compact_15l", "compact_15l_mgn_authors", "polarnet", "gradnor
 
 def _hash(t: Tensor) -> str:
     return hashlib.sha256(t.detach().contiguous().cpu().numpy().tobytes()).hexdigest()[:16]
-
-
-def _cpu_name() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def _losses(model: nn.Module, batch: dict[str, Tensor], de_factor: float) -> dict[str, Tensor]:
@@ -242,7 +232,7 @@ def main() -> None:
     set_threads(params.train.num_threads)
     torch.use_deterministic_algorithms(True, warn_only=True)  # as training runs
     warnings.filterwarnings("ignore", message=".*does not have a deterministic implementation")
-    result = {"cpu": _cpu_name(), "torch": torch.__version__, "threads": params.train.num_threads,
+    result = {"cpu": cpu_name(), "torch": torch.__version__, "threads": params.train.num_threads,
               "code": source_fingerprint(), "weights": str(args.weights) if args.weights else None,
               "models": {m: fingerprint_model(m, args, params) for m in args.models}}
     if args.out:

@@ -15,10 +15,25 @@ from __future__ import annotations
 import os
 from typing import Any, Iterable, Optional
 
-__all__ = ["WORKER_COUNTS", "usable_cores", "bounded", "bounded_counts_line", "device_problem"]
+__all__ = ["WORKER_COUNTS", "cpu_name", "usable_cores", "bounded", "bounded_counts_line", "device_problem"]
 
 #: The params keys that count worker processes (any value gives the same result).
 WORKER_COUNTS: tuple[str, ...] = ("world.workers", "preprocess.workers", "train.num_workers", "train.parallel_runs")
+
+
+def cpu_name() -> str:
+    """The CPU's model name as /proc/cpuinfo gives it; ``platform.processor()`` (often empty) or
+    the architecture where there is no such file."""
+    import platform
+
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as fh:
+            for line in fh:
+                if line.startswith("model name"):
+                    return line.partition(":")[2].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine() or "unknown"
 
 
 def usable_cores() -> int:

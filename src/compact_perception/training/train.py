@@ -31,7 +31,6 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-import platform
 import random
 import time
 import zlib
@@ -46,7 +45,7 @@ from ..core import catalog, io
 from ..core.config import ModelRecipe, Params
 from ..core.determinism import release_torch_pins, resolve_device, set_determinism, set_threads
 from ..core.errors import RunError
-from ..core.machine import bounded
+from ..core.machine import bounded, cpu_name
 from ..data import make_loader, to_device
 from ..losses import de_loss_factor
 from ..models import build_model
@@ -378,16 +377,8 @@ def _export_best(run: RunState) -> dict:
 
 
 def _device_name(device: torch.device) -> str:
-    """The GPU's name, or the CPU's as the OS names it (``platform.processor()`` is often empty)."""
-    if device.type == "cuda":
-        return torch.cuda.get_device_name(device)
-    try:
-        for line in open("/proc/cpuinfo", encoding="utf-8", errors="replace"):
-            if line.startswith("model name"):
-                return "CPU: " + line.partition(":")[2].strip()
-    except OSError:
-        pass
-    return "CPU: " + (platform.processor() or platform.machine() or "unknown")
+    """The GPU's name, or the CPU's as the OS names it."""
+    return torch.cuda.get_device_name(device) if device.type == "cuda" else f"CPU: {cpu_name()}"
 
 
 def _finish(run: RunState) -> dict:
