@@ -13,7 +13,8 @@ its weights; the epoch's losses and metrics are read there). Columns:
 
 - ``ops``: aten ops of an ordinary step (each about one kernel launch on a GPU);
 - ``syncs first / mid / last``: host reads of device values in the epoch's first step, in an
-  ordinary step (the most of them) and in its last step;
+  ordinary step (the most of them) and in its last step (with the epoch's read of its sums and
+  weights after it);
 - on CUDA, ``samples/s``: ``--time-steps`` ordinary steps after the counted ones (the census
   itself slows a step down, so the timed steps run without it).
 
@@ -39,7 +40,7 @@ from compact_perception.data import make_loader  # noqa: E402
 from compact_perception.plan import recipe_of  # noqa: E402
 from compact_perception.training import distributed as ddp  # noqa: E402
 from compact_perception.training.census import Census, optimizer_step_counters  # noqa: E402
-from compact_perception.training.epoch import train_step  # noqa: E402
+from compact_perception.training.epoch import epoch_means, train_step  # noqa: E402
 from compact_perception.training.state import RunPaths, RunSpec  # noqa: E402
 from compact_perception.training.train import _setup  # noqa: E402
 
@@ -69,8 +70,10 @@ def census_of(run, batch: dict, steps: int) -> list[Census]:
         with Census(run.spec.device, host_side) as c:
             train_step(run, batch, step, steps)
         out.append(c)
-    if hasattr(run, "epoch_values"):  # the epoch's read, as train_epoch does it after its last step
-        run.epoch_values()
+    with Census(run.spec.device, host_side) as c:  # the epoch's read, as train_epoch does it
+        epoch_means(run)
+    out[-1].syncs += c.syncs
+    out[-1].sites.update(c.sites)
     return out
 
 
@@ -113,9 +116,10 @@ def main() -> None:
             key = f"{model}/{arm}" if arm else model
             if args.only and key not in args.only and model not in args.only:
                 continue
-            loader = make_loader(cache, "train", catalog.MODELS[model].lidar_channels, args.batch, shuffle=False)
-            batch = next(iter(loader))
             run = build(params, model, arm, device, cache, Path(tmp) / key.replace("/", "_"))
+            loader = make_loader(cache, "train", catalog.MODELS[model].lidar_channels, args.batch, shuffle=False,
+                                 labelled=getattr(run.model, "labelled_maps", ()))  # as train._open builds it
+            batch = next(iter(loader))
             counts = census_of(run, batch, args.steps)
             mid = max(counts[1:-1], key=lambda c: c.syncs)
             line = (f"{key:<28s} {counts[1].ops:6d} "
