@@ -82,15 +82,19 @@ def write_combination(tg: TaskGradients, coeffs: Sequence[float] | Tensor) -> No
     """Write ``sum_k coeffs[k] g_k`` (shared parameters) or ``sum_k g_k`` (parameters at most one
     task reaches), plus the non-task gradient, into ``.grad``: added to an existing ``.grad``,
     else set. Parameters no loss reaches are left alone. ``coeffs``: Python floats, or a float64
-    tensor on the device (not read: a 0-d coefficient scales a gradient as its float would, cast
-    to the gradient's dtype)."""
+    tensor on the device (not read): cast once to the gradient's dtype, each coefficient scales a
+    gradient as its Python float did (rounded to that dtype, then one multiply)."""
+    cast: dict[torch.dtype, Tensor] = {}  # a tensor's coefficients in each gradient dtype, cast once
     for k, p in enumerate(tg.params):
         acc: Tensor | None = None
         for i, col in enumerate(tg.per_task):
             g = col[k]
             if g is None:
                 continue
-            c = coeffs[i] if isinstance(coeffs, Tensor) else float(coeffs[i])
+            if isinstance(coeffs, Tensor):
+                c: Tensor | float = cast.setdefault(g.dtype, coeffs.to(g.dtype))[i]
+            else:
+                c = float(coeffs[i])
             term = g * c if tg.shared[k] else g
             acc = term if acc is None else acc + term
         if tg.aux[k] is not None:
