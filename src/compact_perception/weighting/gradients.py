@@ -84,7 +84,7 @@ def write_combination(tg: TaskGradients, coeffs: Sequence[float] | Tensor) -> No
     else set. Parameters no loss reaches are left alone. ``coeffs``: Python floats, or a float64
     tensor on the device (not read): cast once to the gradient's dtype, each coefficient scales a
     gradient as its Python float did (rounded to that dtype, then one multiply)."""
-    cast: dict[torch.dtype, Tensor] = {}  # a tensor's coefficients in each gradient dtype, cast once
+    cast: dict[torch.dtype, tuple[Tensor, ...]] = {}  # a tensor's coefficients per gradient dtype, cast once
     for k, p in enumerate(tg.params):
         acc: Tensor | None = None
         for i, col in enumerate(tg.per_task):
@@ -92,7 +92,9 @@ def write_combination(tg: TaskGradients, coeffs: Sequence[float] | Tensor) -> No
             if g is None:
                 continue
             if isinstance(coeffs, Tensor):
-                c: Tensor | float = cast.setdefault(g.dtype, coeffs.to(g.dtype))[i]
+                if g.dtype not in cast:
+                    cast[g.dtype] = coeffs.to(g.dtype).unbind()
+                c: Tensor | float = cast[g.dtype][i]
             else:
                 c = float(coeffs[i])
             term = g * c if tg.shared[k] else g
