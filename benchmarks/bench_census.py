@@ -2,7 +2,7 @@
 loss weighting (:mod:`compact_perception.training.census`), and on a GPU the samples/s of one run.
 
     .venv/bin/python benchmarks/bench_census.py [--size 32] [--batch 6] [--steps 3] [--precision fp32]
-        [--only compact_15l/uw ...] [--sites] [--time-steps 10]
+        [--only compact_15l/uw ...] [--sites] [--time-steps 10] [--side-by-side 4 12]
 
 Every registered model trains with its own recipe (params.yaml), and the compact 15L network with
 each study arm that brings another loss weighting (GradNorm, UW, DWA, PCGrad, CAGrad, a single-task
@@ -16,7 +16,9 @@ its weights; the epoch's losses and metrics are read there). Columns:
   ordinary step (the most of them) and in its last step (with the epoch's read of its sums and
   weights after it);
 - on CUDA, ``samples/s``: ``--time-steps`` ordinary steps after the counted ones (the census
-  itself slows a step down, so the timed steps run without it).
+  itself slows a step down, so the timed steps run without it);
+- ``--side-by-side k ...``: k processes training the first selected run at once on the device,
+  each timed over ``--time-steps`` steps after they all warmed up (default on CUDA: 4 and 12).
 
 ``--sites`` prints where in the code each sync of an ordinary step happens.
 """
@@ -77,13 +79,54 @@ def census_of(run, batch: dict, steps: int) -> list[Census]:
     return out
 
 
+def _sync(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
 def samples_per_s(run, batch: dict, steps: int, n: int) -> float:
-    torch.cuda.synchronize()
+    """Samples per second over ``n`` ordinary steps (the device synchronised before and after)."""
+    _sync(run.spec.device)
     t0 = time.perf_counter()
     for k in range(n):
         train_step(run, batch, 1 + k % max(steps - 2, 1), steps)
-    torch.cuda.synchronize()
+    _sync(run.spec.device)
     return n * run.spec.per_rank_batch / (time.perf_counter() - t0)
+
+
+def make_params(device: torch.device, precision: str, batch: int):
+    """params.yaml with the benchmark's device, precision and batch (no file written)."""
+    params = load_params(ROOT / "params.yaml")
+    train = params.train.model_copy(update={"precision": precision, "device": device.type, "batch_size": batch,
+                                            "compile": False, "num_workers": 0})
+    return params.model_copy(update={"train": train})
+
+
+def _side_worker(job: tuple) -> float:
+    """One of k processes sharing the device: build, warm up, wait for the others, time."""
+    precision, batch_size, model, arm, cache, out, n, barrier = job
+    device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    params = make_params(device, precision, batch_size)
+    run = build(params, model, arm, device, Path(cache), Path(out))
+    loader = make_loader(Path(cache), "train", catalog.MODELS[model].lidar_channels, params.train.batch_size,
+                         shuffle=False, labelled=getattr(run.model, "labelled_maps", ()))
+    batch = next(iter(loader))
+    for _ in range(3):
+        train_step(run, batch, 1, 3)
+    barrier.wait()
+    return samples_per_s(run, batch, 3, n)
+
+
+def side_by_side(params, model: str, arm: str | None, cache: Path, tmp: Path, k: int, n: int) -> list[float]:
+    """Samples/s of each of ``k`` processes training ``model`` at once on one device."""
+    import multiprocessing as mp
+
+    ctx = mp.get_context("spawn")
+    with ctx.Manager() as mgr, ctx.Pool(k) as pool:
+        barrier = mgr.Barrier(k)
+        jobs = [(params.train.precision, params.train.batch_size, model, arm, str(cache), str(tmp / f"side{k}_{i}"),
+                 n, barrier) for i in range(k)]
+        return pool.map(_side_worker, jobs)
 
 
 def main() -> None:
@@ -95,14 +138,14 @@ def main() -> None:
     ap.add_argument("--only", nargs="*", default=None, help="model or model/arm ids")
     ap.add_argument("--sites", action="store_true", help="where each sync of an ordinary step happens")
     ap.add_argument("--time-steps", type=int, default=10, help="timed steps per run on CUDA")
+    ap.add_argument("--side-by-side", type=int, nargs="*", default=None,
+                    help="k processes training the first run at once, samples/s each and together "
+                         "(default on CUDA: 4 12; on a CPU only when given)")
     args = ap.parse_args()
     if args.steps < 3:
         ap.error("--steps must be at least 3 (a first, an ordinary and a last step)")
     device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    params = load_params(ROOT / "params.yaml")
-    train = params.train.model_copy(update={"precision": args.precision, "device": device.type,
-                                            "batch_size": args.batch, "compile": False, "num_workers": 0})
-    params = params.model_copy(update={"train": train})
+    params = make_params(device, args.precision, args.batch)
     where = torch.cuda.get_device_name() if device.type == "cuda" else f"CPU, {torch.get_num_threads()} threads"
     print(f"device: {where}; torch {torch.__version__}; {args.precision}; {args.size} px; batch {args.batch}; "
           f"an epoch of {args.steps} steps of training.epoch.train_step")
@@ -130,8 +173,16 @@ def main() -> None:
             if args.sites:
                 for site, n in mid.sites.most_common():
                     print(f"    {n:3d}x {site}")
+        side = args.side_by_side if args.side_by_side is not None else ([4, 12] if device.type == "cuda" else [])
+        first = next(((m, a) for m, a in runs() if not args.only or m in args.only
+                      or f"{m}/{a}" in args.only), None)
+        for k in side if first else []:
+            each = side_by_side(params, first[0], first[1], cache, Path(tmp), k, args.time_steps)
+            name = f"{first[0]}/{first[1]}" if first[1] else first[0]
+            print(f"{k} x {name} side by side: {min(each):.1f}-{max(each):.1f} samples/s each, "
+                  f"{sum(each):.1f} together" + ("" if device.type == "cuda" else " (CPU figures)"), flush=True)
     if device.type != "cuda":
-        print("samples/s: not measured here (no GPU; a CPU's step time says nothing about a GPU's)")
+        print("GPU samples/s: not measured here (no GPU; a CPU's step time says nothing about a GPU's)")
 
 
 if __name__ == "__main__":
