@@ -31,7 +31,7 @@ from __future__ import annotations
 import traceback
 from collections import Counter
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any, Callable
 
 import torch
 from torch.overrides import TorchFunctionMode
@@ -47,8 +47,7 @@ PYTHON_READS: frozenset[str] = frozenset({
 #: aten ops whose output size (or a Python result) depends on the values: a device read on CUDA.
 SHAPE_SYNC_OPS: frozenset[str] = frozenset({
     "_local_scalar_dense", "nonzero", "masked_select", "unique", "_unique", "_unique2", "unique_dim",
-    "unique_consecutive", "equal", "is_nonzero", "allclose", "repeat_interleave", "bincount",
-    "histc", "masked_scatter_", "_assert_async"})
+    "unique_consecutive", "equal", "is_nonzero", "allclose", "repeat_interleave", "bincount"})
 
 _PACKAGE = str(Path(__file__).resolve().parents[1])
 
