@@ -2,10 +2,11 @@
 warm-up, bf16/fp16 autocast, channels-last and CUDA graphs (optionally torch.compile).
 
     .venv/bin/python benchmarks/bench_gpu.py [--model compact_15l] [--dataset A] [--resolution 128]
-        [--warmup 10] [--runs 50] [--compile] [--device auto|cpu|cuda]
+        [--warmup 10] [--runs 50] [--compile] [--fold-bn] [--device auto|cpu|cuda]
 
 On a CUDA device it times float32, fp16 and (where supported) bf16 autocast, the fastest
-precision with channels-last, and CUDA graphs of float32 and of the fastest precision. On a
+precision with channels-last, CUDA graphs of float32 and of the fastest precision, and batch
+normalisation folded into the convolutions (float32, with and without a CUDA graph). On a
 machine without a GPU the same code path runs on the CPU (float32, bf16 autocast,
 channels-last; CUDA graphs need CUDA and are skipped) and the output says "no GPU: CPU figures".
 Timing: :func:`compact_perception.timing.benchmark_variants` (warm-up calls untimed, the device
@@ -34,6 +35,8 @@ def main() -> None:
     ap.add_argument("--warmup", type=int, default=10)
     ap.add_argument("--runs", type=int, default=50)
     ap.add_argument("--compile", action="store_true", help="add torch.compile variants")
+    ap.add_argument("--fold-bn", action="store_true",
+                    help="on a CPU, add batch norm folded into the convolutions (a GPU's list has it)")
     ap.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"])
     ap.add_argument("--threads", type=int, default=None, help="torch intra-op threads on a CPU")
     ap.add_argument("--json", default=None, help="also write the results to this JSON file")
@@ -51,6 +54,9 @@ def main() -> None:
     if args.compile:
         best = variants[-1].precision if device.type == "cuda" else "fp32"
         variants += [Variant("fp32+compile", compile=True), Variant(f"{best}+compile", best, compile=True)]
+    if args.fold_bn and device.type == "cpu":
+        variants += [Variant("fp32+fold_bn", fold_bn=True),
+                     Variant("channels_last+fold_bn", channels_last=True, fold_bn=True)]
     if device.type == "cpu":
         print(f"no GPU: CPU figures ({device_name(device)}, {torch.backends.cpu.get_cpu_capability()}, "
               f"native bf16: {cpu_has_native_bf16()})")

@@ -35,7 +35,8 @@ def evaluate_one(params_path: str, dataset: str, model: str, run_dir: str, metri
     return evaluate_run(dataset, model, Path("data/cache") / dataset, Path(run_dir), Path(metrics_path),
                         Path(eval_dir), device_pref=params.train.device,
                         save_predictions=0 if arm else params.evaluate.save_predictions,
-                        num_threads=params.train.num_threads, depth_max_m=params.evaluate.depth_max_m, floor=floor)
+                        num_threads=params.train.num_threads, depth_max_m=params.evaluate.depth_max_m, floor=floor,
+                        batch_size=params.evaluate.batch_size)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -10,12 +10,13 @@ from __future__ import annotations
 
 import logging
 import os
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 import torch
-from torch.utils.data import DataLoader, Dataset, DistributedSampler, RandomSampler, SequentialSampler
+from torch.utils.data import DataLoader, Dataset, DistributedSampler, RandomSampler, SequentialSampler, default_collate
 
 from .core.cache import CacheError, read_meta, read_split
 
@@ -91,6 +92,7 @@ def make_loader(
     drop_last: bool = False,
     distributed: bool = False,
     pin_memory: bool = False,
+    labelled: Sequence[str] = (),
 ) -> DataLoader:
     """A DataLoader over :class:`CacheDataset` with deterministic order.
 
@@ -102,6 +104,9 @@ def make_loader(
     The loader never draws from the global torch RNG (it has a generator of its own for the
     workers' base seed), so the global RNG that dropout uses follows the same sequence for
     any ``num_workers`` and after a resume: worker counts cannot change a result.
+
+    ``labelled``: class maps whose labelled pixels the loader finds for the losses
+    (:class:`Labelled`, under ``"labelled"``; a model's ``labelled_maps``).
     """
     ds = CacheDataset(cache_dir, split, lidar_channels)
     if distributed:
@@ -119,6 +124,7 @@ def make_loader(
         persistent_workers=num_workers > 0,
         pin_memory=pin_memory,
         generator=torch.Generator().manual_seed(seed),
+        collate_fn=LabelledCollate(labelled) if labelled else None,
     )
 
 
@@ -144,19 +150,61 @@ def one_hot(index: torch.Tensor, num_classes: int, dim: int, dtype: torch.dtype 
     return out
 
 
+@dataclass(frozen=True)
+class Labelled:
+    """Where a class map (``ss``, ``ls``) has labels, found on the host from the batch's uint8
+    class indices (255 = no label) while the loader collates it, so a loss that leaves unlabelled
+    pixels out (cross entropy, Lovasz-softmax: the baselines') need not read the device to find
+    them. A model asks for it with ``labelled_maps`` (:func:`make_loader`'s ``labelled``).
+
+    ``views``: per view, the flat indices (over the view's (B, S, S) pixels, row-major) of its
+    labelled pixels, int64; their number is ``numel()``, known on the host.
+    ``classes``: the classes labelled somewhere in the batch, ascending."""
+
+    views: tuple[torch.Tensor, ...]
+    classes: tuple[int, ...]
+
+    def to(self, device: torch.device, non_blocking: bool = False) -> "Labelled":
+        return Labelled(tuple(v.to(device, non_blocking=non_blocking) for v in self.views), self.classes)
+
+
+def labelled_pixels(index: torch.Tensor) -> Labelled:
+    """:class:`Labelled` of a uint8 class-index map on the host, (B,V,S,S) or (B,S,S) (one view)."""
+    per_view = [index[:, v] for v in range(index.shape[1])] if index.dim() == 4 else [index]
+    views = tuple(torch.nonzero(m.reshape(-1) != 255).reshape(-1) for m in per_view)
+    return Labelled(views, tuple(int(c) for c in torch.unique(index[index != 255]).tolist()))
+
+
+class LabelledCollate:
+    """The loader's collate: the default one, plus ``"labelled"``: ``{key: Labelled}`` for the
+    class maps ``keys`` (picklable, for worker processes)."""
+
+    def __init__(self, keys: Sequence[str]) -> None:
+        self.keys = tuple(keys)
+
+    def __call__(self, frames: list[dict[str, torch.Tensor]]) -> dict[str, Any]:
+        batch: dict[str, Any] = default_collate(frames)
+        batch["labelled"] = {k: labelled_pixels(batch[k]) for k in self.keys if k in batch}
+        return batch
+
+
 def to_device(
-    batch: dict[str, torch.Tensor], device: torch.device | str, num_seg_classes: int, dtype: torch.dtype = torch.float32
-) -> dict[str, torch.Tensor]:
+    batch: dict[str, Any], device: torch.device | str, num_seg_classes: int, dtype: torch.dtype = torch.float32
+) -> dict[str, Any]:
     """Move a collated batch to ``device`` and expand it there (docs/ARCHITECTURE.md "Batches").
 
     Returns float tensors: ``rgb`` (B,V,3,S,S) = uint8/255, ``dvs`` (B,V,2,S,S), ``lidar``
     (B,L,S,S), ``de`` (B,V,1,S,S), ``ss`` (B,V,C,S,S) one-hot, ``ls`` (B,C,S,S) one-hot
-    (zero vector where no point), ``bevp`` (B,Cb,S,S); ``index`` stays int64.
+    (zero vector where no point), ``bevp`` (B,Cb,S,S); ``index`` stays int64; a loader's
+    ``"labelled"`` (:class:`Labelled` per class map) moves too.
     """
     dev = torch.device(device)
     nb = dev.type == "cuda"
     out: dict[str, torch.Tensor] = {}
     for key, t in batch.items():
+        if key == "labelled":
+            out[key] = {k: lab.to(dev, non_blocking=nb) for k, lab in t.items()}
+            continue
         if not isinstance(t, torch.Tensor):
             continue
         t = t.to(dev, non_blocking=nb)

@@ -1,6 +1,7 @@
 """Test-split evaluation of one trained run (SPEC 6, paper Table II).
 
-Every test frame is scored on its own (batch size 1); each metric is then reported as the
+Every test frame is scored on its own (the network runs at ``evaluate.batch_size``, 1 by
+default: a frame's outputs depend in their last bits on the batch it runs in); each metric is then reported as the
 mean and the population variance over frames, as in Table II. TM (eq. 6) is reported as the TM
 of the four means (equal to the mean of the per-frame TM) with its variance over frames; MV
 (eq. 7) is one number, the population variance of the four test-set means, as the paper
@@ -208,45 +209,65 @@ def load_trained(dataset_id: str, model_id: str, run_dir: Path) -> tuple[torch.n
     return model.eval(), int(checkpoint.get("epoch", -1))
 
 
+def _frame(tensors: Mapping[str, torch.Tensor], i: int, n: int) -> dict[str, torch.Tensor]:
+    """Frame ``i`` of a batch of ``n`` as a batch of one (the batch itself when ``n == 1``)."""
+    return dict(tensors) if n == 1 else {k: v[i:i + 1] for k, v in tensors.items()}
+
+
+def _frame_row(out: Mapping[str, torch.Tensor], batch: Mapping[str, torch.Tensor], frame_id: str,
+               depth_max_m: float) -> dict:
+    """One test frame's scores from its outputs and targets (a batch of one)."""
+    row = {"frame_id": frame_id, **frame_scores(compute_metrics(out, batch, argmax_tasks=()))}
+    row.update({f"iou_{t}{ARGMAX_SUFFIX}": float(iou_argmax_per_sample(out[t], batch[t])[0])
+                for t in ARGMAX_TASKS if t in out and t in batch})
+    if "de" in out and "de" in batch:
+        row.update({k: float(v[0]) for k, v in depth_errors_per_sample(out["de"], batch["de"], depth_max_m).items()})
+    return row
+
+
 def _score_frames(model: torch.nn.Module, loader, ids: list[str], n_cls: int, device: torch.device,
                   save_predictions: int, desc: str, depth_max_m: float) -> tuple[pd.DataFrame, ClassCounts, dict, dict]:
-    """Per-frame scores (batch 1) of ``model`` over the test loader, the class counts, and the
-    predictions and inputs of the first ``save_predictions`` frames."""
+    """Per-frame scores of ``model`` over the test loader, the class counts, and the predictions and
+    inputs of the first ``save_predictions`` frames. The network runs on the loader's batches; each
+    frame is then scored on its own outputs, by the same code as a batch of one (the class counts
+    are integer sums, the same for any batch)."""
     rows, preds, inputs = [], {t: [] for t in model.tasks}, {}
     counts = ClassCounts()
+    i = 0
     with torch.no_grad():
-        for i, raw in enumerate(tqdm(loader, desc=desc, leave=False)):
+        for raw in tqdm(loader, desc=desc, leave=False):
             batch = to_device(raw, device, n_cls)
             out = model(batch)
-            row = {"frame_id": ids[i], **frame_scores(compute_metrics(out, batch, argmax_tasks=()))}
-            row.update({f"iou_{t}{ARGMAX_SUFFIX}": float(iou_argmax_per_sample(out[t], batch[t])[0])
-                        for t in ARGMAX_TASKS if t in out and t in batch})
-            if "de" in out and "de" in batch:
-                row.update({k: float(v[0]) for k, v in depth_errors_per_sample(out["de"], batch["de"], depth_max_m).items()})
-            rows.append(row)
+            n = next(iter(batch.values())).shape[0]
+            for j in range(n):
+                rows.append(_frame_row(_frame(out, j, n), _frame(batch, j, n), ids[i + j], depth_max_m))
             counts.add(out, batch)
-            if i < save_predictions:
+            for j in range(min(n, save_predictions - i)):
                 for t in model.tasks:
-                    preds[t].append(_compact_prediction(t, out[t]))
+                    preds[t].append(_compact_prediction(t, out[t][j:j + 1]))
                 for k, v in raw.items():
-                    inputs.setdefault(k, []).append(v[0].numpy())
+                    inputs.setdefault(k, []).append(v[j].numpy())
+            i += n
     return pd.DataFrame(rows), counts, preds, inputs
 
 
 def score_test_split(model: torch.nn.Module, dataset_id: str, name: str, cache_dir: Path, out_json: Path,
                      eval_dir: Path, *, device: torch.device, lidar_channels: int, save_predictions: int,
-                     depth_max_m: float,
+                     depth_max_m: float, batch_size: int = 1,
                      floor: Mapping[str, float] | None = None, extra: Mapping[str, object] | None = None) -> dict:
     """Score ``model`` (a trained network or a trivial predictor, :mod:`.floor`) on the test split of
     ``cache_dir``, frame by frame, and write ``out_json`` (Table II's numbers and the extra
     metrics), ``eval_dir/per_frame.csv`` and the saved predictions. ``floor``: the per-task floor
     (:func:`.floor.floor_of`), whose margins go into ``floor_margin``; ``extra``: more keys for
-    ``out_json``."""
+    ``out_json``. ``batch_size`` (``evaluate.batch_size``): frames the network runs on together;
+    every frame is scored on its own outputs, but a network's outputs for a frame move in their last
+    bits with the batch it runs in (docs/gpu.md), so only batch 1 gives the committed scores."""
     cache_dir = Path(cache_dir)
     meta = read_meta(cache_dir)
     n_cls = len(meta["seg_classes"])
     model.to(device).eval()
-    loader = make_loader(cache_dir, "test", lidar_channels, 1, shuffle=False, seed=0, num_workers=0, drop_last=False)
+    loader = make_loader(cache_dir, "test", lidar_channels, batch_size, shuffle=False, seed=0, num_workers=0,
+                         drop_last=False)
     ids = read_split(cache_dir, "test", meta).frame_ids
     per_frame, counts, preds, inputs = _score_frames(model, loader, ids, n_cls, device, save_predictions,
                                                      f"evaluate {dataset_id}/{name}", depth_max_m)
@@ -283,16 +304,17 @@ def _write_outputs(eval_dir: Path, out_json: Path, result: dict, per_frame: pd.D
 
 def evaluate_run(dataset_id: str, model_id: str, cache_dir: Path, run_dir: Path, out_json: Path,
                  eval_dir: Path, *, device_pref: str, save_predictions: int, num_threads: int, depth_max_m: float,
-                 floor: Mapping[str, float] | None = None) -> dict:
+                 floor: Mapping[str, float] | None = None, batch_size: int = 1) -> dict:
     """Score ``run_dir/best.pt`` on the test split of ``cache_dir`` with ``num_threads`` torch
-    threads (``train.num_threads``: the thread count is part of the result)."""
+    threads (``train.num_threads``: the thread count is part of the result), ``batch_size`` frames
+    at a time (:func:`score_test_split`)."""
     set_threads(num_threads)
     read_meta(cache_dir)  # a missing or broken cache is named before the checkpoint is read
     model, best_epoch = load_trained(dataset_id, model_id, Path(run_dir))
     return score_test_split(model, dataset_id, model_id, cache_dir, out_json, eval_dir,
                             device=resolve_device(device_pref), lidar_channels=catalog.MODELS[model_id].lidar_channels,
-                            save_predictions=save_predictions, depth_max_m=depth_max_m, floor=floor,
-                            extra={"best_epoch": best_epoch})
+                            save_predictions=save_predictions, depth_max_m=depth_max_m, batch_size=batch_size,
+                            floor=floor, extra={"best_epoch": best_epoch})
 
 
 def evaluate_floors(dataset_id: str, cache_dir: Path, root: Path | str = ".", *, save_predictions: int,

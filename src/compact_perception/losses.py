@@ -16,6 +16,8 @@ keeps the autograd graph.
 """
 from __future__ import annotations
 
+from typing import Sequence
+
 import torch
 from torch import Tensor
 import torch.nn.functional as F
@@ -104,17 +106,25 @@ def bce_dice_loss(pred: Tensor, target: Tensor, eps: float = 1e-7) -> Tensor:
     return (bce_v + 1.0 - dice_v).mean()
 
 
-def cross_entropy_onehot(logits: Tensor, target_onehot: Tensor) -> Tensor:
+def cross_entropy_onehot(logits: Tensor, target_onehot: Tensor, labelled: Tensor | None = None) -> Tensor:
     """Pixel-wise cross entropy from logits with one-hot targets.
 
     The class axis is dim 1 for (B,C,H,W) and dim 2 for (B,V,C,H,W). Pixels whose target
     one-hot vector is all zero (no label, ARCHITECTURE "255") are ignored; the result is
     the mean over labelled pixels (0 with a graph if none is labelled).
+
+    ``labelled``: the flat indices of the labelled pixels (row-major over the per-pixel map), found
+    on the host (:class:`compact_perception.data.Labelled`): the same gather, sum and mean as the
+    boolean mask, without reading the device (the mask's ``nonzero`` and the count's test do).
     """
     dim = _class_dim(logits)
     y = target_onehot.to(logits.dtype)
     logp = F.log_softmax(logits, dim=dim)
     per_pixel = -(y * logp).sum(dim=dim)
+    if labelled is not None:
+        if labelled.numel() == 0:
+            return logits.sum() * 0.0
+        return per_pixel.reshape(-1)[labelled].sum() / labelled.numel()
     valid = y.sum(dim=dim) > 0
     n = valid.sum()
     if n == 0:
@@ -138,7 +148,8 @@ def _lovasz_grad(fg_sorted: Tensor) -> Tensor:
     return jac
 
 
-def lovasz_softmax(probs: Tensor, target_onehot: Tensor) -> Tensor:
+def lovasz_softmax(probs: Tensor, target_onehot: Tensor, labelled: Tensor | None = None,
+                   classes: Sequence[int] | None = None) -> Tensor:
     """Lovasz-softmax loss (Berman, Rannen Triki, Blaschko, CVPR 2018), classes = 'present'.
 
     ``probs``: softmax probabilities, class axis 1 (B,C,H,W) or 2 (B,V,C,H,W). All pixels
@@ -146,17 +157,25 @@ def lovasz_softmax(probs: Tensor, target_onehot: Tensor) -> Tensor:
     present in the target, errors ``m_c = |y_c - p_c|`` are sorted in decreasing order and
     dotted with the Lovasz-extension gradient of the Jaccard loss; the loss is the mean
     over present classes (0 with a graph if no pixel is labelled).
+
+    ``labelled`` and ``classes``: the labelled pixels' flat indices and the classes present among
+    them, found on the host (:class:`compact_perception.data.Labelled`): the same computation
+    without a host read of the device (the mask's ``nonzero`` and each class's presence test).
     """
     dim = _class_dim(probs)
     c = probs.shape[dim]
     p = probs.movedim(dim, -1).reshape(-1, c)
     y = target_onehot.to(probs.dtype).movedim(dim, -1).reshape(-1, c)
-    valid = y.sum(dim=1) > 0
-    p, y = p[valid], y[valid]
+    if labelled is not None and classes is not None:
+        p, y, present = p[labelled], y[labelled], set(classes)
+    else:
+        valid = y.sum(dim=1) > 0
+        p, y, present = p[valid], y[valid], None
     losses = []
     for k in range(c):
         fg = y[:, k]
-        if fg.sum() <= 0:
+        absent = k not in present if present is not None else bool(fg.sum() <= 0)
+        if absent:
             continue
         err = (fg - p[:, k]).abs()
         err_sorted, perm = torch.sort(err, descending=True)

@@ -49,7 +49,6 @@ from typing import Any, Callable, Collection, Literal, Mapping, Optional, Union
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 from torch import Tensor
 
 from .core import catalog
@@ -66,6 +65,7 @@ __all__ = [
     "total_metric",
     "metric_variance",
     "compute_metrics",
+    "metric_tensors",
     "argmax_one_hot",
     "labelled_only",
     "eq5_inputs",
@@ -192,9 +192,9 @@ def total_metric_partial(scores: Mapping[str, float]) -> float:
 
 def argmax_one_hot(probs: Tensor) -> Tensor:
     """A softmax output's predicted class map as a one-hot tensor (class axis -3, as the
-    targets): 1 at the arg-max class of every pixel, 0 elsewhere."""
-    n_cls = probs.shape[-3]
-    return F.one_hot(probs.argmax(dim=-3), n_cls).movedim(-1, -3).to(probs.dtype)
+    targets): 1 at the arg-max class of every pixel, 0 elsewhere. A scatter into zeros, not
+    ``F.one_hot``, which reads the indices' range on the host (a sync on every call)."""
+    return torch.zeros_like(probs).scatter_(-3, probs.argmax(dim=-3, keepdim=True), 1.0)
 
 
 def scored_outputs(outputs: Mapping[str, Tensor], argmax_tasks: Collection[str]) -> dict[str, Tensor]:
@@ -206,6 +206,22 @@ def scored_outputs(outputs: Mapping[str, Tensor], argmax_tasks: Collection[str])
     return {k: argmax_one_hot(v) if k in argmax_tasks else v for k, v in outputs.items()}
 
 
+@torch.no_grad()
+def metric_tensors(outputs: Mapping[str, Tensor], targets: Mapping[str, Tensor], *,
+                   argmax_tasks: Collection[str]) -> dict[str, Tensor]:
+    """The batch's task metrics of :func:`compute_metrics` (``mae_de``, ``iou_ss``, ``iou_ls``,
+    ``iou_bevp``, those present in both dicts) as 0-d float64 tensors on the outputs' device: no
+    value is read by the host (the training loop sums them on the device)."""
+    outputs = eq5_inputs(scored_outputs(outputs, argmax_tasks), targets)
+    out: dict[str, Tensor] = {}
+    if "de" in outputs and "de" in targets:
+        out["mae_de"] = mae(outputs["de"], targets["de"])
+    for t in ("ss", "ls", "bevp"):
+        if t in outputs and t in targets:
+            out[f"iou_{t}"] = iou(outputs[t], targets[t])
+    return out
+
+
 def compute_metrics(outputs: Mapping[str, Tensor], targets: Mapping[str, Tensor], *,
                     argmax_tasks: Collection[str]) -> dict[str, float]:
     """Batch metrics for the tasks present in both dicts: ``mae_de``, ``iou_ss``, ``iou_ls``,
@@ -214,13 +230,7 @@ def compute_metrics(outputs: Mapping[str, Tensor], targets: Mapping[str, Tensor]
 
     ``mv`` here is eq. (7) of *this batch's* four scores; a mean of it over batches or frames
     is not the paper's MV (use :func:`scores_from_means` on the split's means)."""
-    outputs = eq5_inputs(scored_outputs(outputs, argmax_tasks), targets)
-    out: dict[str, float] = {}
-    if "de" in outputs and "de" in targets:
-        out["mae_de"] = float(mae(outputs["de"], targets["de"]))
-    for t in ("ss", "ls", "bevp"):
-        if t in outputs and t in targets:
-            out[f"iou_{t}"] = float(iou(outputs[t], targets[t]))
+    out = {k: float(v) for k, v in metric_tensors(outputs, targets, argmax_tasks=argmax_tasks).items()}
     terms = score_terms(out)
     if terms is not None:
         out.update({k: float(catalog.SCORES[k].of_terms(*terms)) for k in catalog.SCORES.keys()})

@@ -14,9 +14,16 @@ CUDA graphs: the model is run three times on a side stream (warm-up, as the CUDA
 documentation requires before capture), then one forward is captured into a
 ``torch.cuda.CUDAGraph`` with static input tensors; a timed call copies the batch into the
 static inputs and replays the graph (outputs are the graph's static outputs).
+
+Batch normalisation folded into the convolutions (:func:`fold_batchnorm`, variants with
+``fold_bn``): at inference a BatchNorm2d is a per-channel affine map of its running statistics,
+so one that reads a convolution's output and nothing else is merged into that convolution's
+weights and bias, one kernel fewer per pair. The folded network equals the unfolded one within
+:data:`FOLD_TOLERANCE` (float32 rounding of the merged weights), checked on the variant's batch.
 """
 from __future__ import annotations
 
+import copy
 import logging
 from dataclasses import asdict, dataclass
 from typing import Any, Callable, Mapping
@@ -29,7 +36,13 @@ from .efficiency import device_name, measure_fps, synchronize
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Variant", "benchmark_variants", "build_inference", "default_variants", "max_abs_diff"]
+__all__ = ["FOLD_TOLERANCE", "Variant", "benchmark_variants", "build_inference", "default_variants", "fold_batchnorm",
+           "max_abs_diff"]
+
+#: The largest absolute output difference a folded network may show against the unfolded one in
+#: float32 (the project's networks end in sigmoids, softmaxes and a depth map in [0, 1]; measured
+#: on the compact network: about 1e-6).
+FOLD_TOLERANCE = 1e-4
 
 
 @dataclass(frozen=True)
@@ -41,12 +54,14 @@ class Variant:
     channels_last: bool = False
     compile: bool = False
     cuda_graph: bool = False
+    fold_bn: bool = False
 
 
 def default_variants(device: torch.device | str) -> list[Variant]:
     """The variants the GPU benchmark compares: float32 eager, bf16 and fp16 autocast (bf16 only
     where the device runs it), channels-last + the fastest precision, and on CUDA a CUDA graph of
-    float32 and of the reduced precision. On a CPU: fp32, bf16, channels-last, both."""
+    float32 and of the reduced precision, each with batch normalisation folded into the convolutions
+    too. On a CPU: fp32, bf16, channels-last, both (a caller may add ``fold_bn`` variants)."""
     dev = torch.device(device)
     if dev.type == "cuda":
         low = ["fp16"] + (["bf16"] if torch.cuda.is_bf16_supported(including_emulation=False) else [])
@@ -55,7 +70,11 @@ def default_variants(device: torch.device | str) -> list[Variant]:
         out += [Variant(f"{best}+channels_last", best, channels_last=True),
                 Variant("fp32+cuda_graph", cuda_graph=True),
                 Variant(f"{best}+cuda_graph", best, cuda_graph=True),
-                Variant(f"{best}+channels_last+cuda_graph", best, channels_last=True, cuda_graph=True)]
+                Variant(f"{best}+channels_last+cuda_graph", best, channels_last=True, cuda_graph=True),
+                Variant("fp32+fold_bn", fold_bn=True),
+                Variant("fp32+fold_bn+cuda_graph", cuda_graph=True, fold_bn=True),
+                Variant(f"{best}+fold_bn+channels_last+cuda_graph", best, channels_last=True, cuda_graph=True,
+                        fold_bn=True)]
         return out
     return [Variant("fp32"), Variant("bf16", "bf16"), Variant("channels_last", channels_last=True),
             Variant("bf16+channels_last", "bf16", channels_last=True)]
@@ -74,6 +93,80 @@ def max_abs_diff(a: Any, b: Any) -> float:
     oa, ob = _outputs(a), _outputs(b)
     diffs = [float((oa[k].float() - ob[k].float()).abs().max()) for k in oa if k in ob and oa[k].numel()]
     return max(diffs) if diffs else 0.0
+
+
+def _conv_bn_pairs(model: nn.Module, batch: Mapping[str, Tensor]) -> list[tuple[nn.Conv2d, nn.BatchNorm2d]]:
+    """The (convolution, batch norm) pairs of ``model`` where, in a forward of ``batch``, the batch
+    norm reads the convolution's output and no other module does (forward hooks; an op outside a
+    module that also reads it is caught by :func:`fold_batchnorm`'s check)."""
+    made: dict[int, tuple[nn.Module, Tensor]] = {}   # id(output) -> (conv, output kept alive)
+    readers: dict[int, set[int]] = {}                 # id(conv) -> ids of the modules reading its outputs
+    sources: dict[int, set[int]] = {}                 # id(bn) -> ids of the convs (or 0) it read from
+    modules = {id(m): m for m in model.modules()}
+
+    def conv_out(mod: nn.Module, _inp: Any, out: Any) -> None:
+        if isinstance(out, Tensor):
+            made[id(out)] = (mod, out)
+
+    def reads(mod: nn.Module, inp: tuple) -> None:
+        for t in inp:
+            if isinstance(t, Tensor) and id(t) in made:
+                readers.setdefault(id(made[id(t)][0]), set()).add(id(mod))
+        if isinstance(mod, nn.BatchNorm2d):
+            t = inp[0] if inp else None
+            sources.setdefault(id(mod), set()).add(id(made[id(t)][0]) if id(t) in made else 0)
+
+    hooks = [m.register_forward_pre_hook(reads) for m in model.modules() if not list(m.children())]
+    hooks += [m.register_forward_hook(conv_out) for m in model.modules() if isinstance(m, nn.Conv2d)]
+    try:
+        with torch.no_grad():
+            model(dict(batch))
+    finally:
+        for h in hooks:
+            h.remove()
+    pairs = []
+    for bn_id, convs in sources.items():
+        conv_id = next(iter(convs))
+        bn = modules[bn_id]
+        if len(convs) == 1 and conv_id and readers.get(conv_id) == {bn_id} and bn.running_mean is not None:
+            pairs.append((modules[conv_id], bn))
+    return pairs
+
+
+def _merge(conv: nn.Conv2d, bn: nn.BatchNorm2d) -> None:
+    """``conv``'s weight and bias with ``bn`` (eval mode: running statistics) applied, in float64."""
+    w = conv.weight.detach().double()
+    b = conv.bias.detach().double() if conv.bias is not None else torch.zeros(w.shape[0], dtype=torch.float64,
+                                                                                device=w.device)
+    gamma = bn.weight.detach().double() if bn.weight is not None else torch.ones_like(b)
+    beta = bn.bias.detach().double() if bn.bias is not None else torch.zeros_like(b)
+    scale = gamma / torch.sqrt(bn.running_var.double() + bn.eps)
+    conv.weight = nn.Parameter((w * scale.reshape(-1, 1, 1, 1)).to(conv.weight.dtype))
+    conv.bias = nn.Parameter(((b - bn.running_mean.double()) * scale + beta).to(conv.weight.dtype))
+
+
+def fold_batchnorm(model: nn.Module, batch: Mapping[str, Tensor],
+                   tolerance: float = FOLD_TOLERANCE) -> tuple[nn.Module, int]:
+    """An inference copy of ``model`` (eval mode; ``model`` is left as it is) with every batch
+    normalisation that reads a convolution's output, and is its only reader, merged into that
+    convolution (``W' = W g / sqrt(var + eps)``, ``b' = (b - mean) g / sqrt(var + eps) + beta``,
+    per output channel, computed in float64) and replaced by an identity; returns the copy and the
+    number of pairs folded. ``ValueError`` when its outputs on ``batch`` differ from ``model``'s by
+    more than ``tolerance``."""
+    model = model.eval()
+    folded = copy.deepcopy(model)
+    pairs = _conv_bn_pairs(folded, batch)
+    parents = {id(child): (parent, name) for parent in folded.modules() for name, child in parent.named_children()}
+    for conv, bn in pairs:
+        _merge(conv, bn)
+        parent, name = parents[id(bn)]
+        setattr(parent, name, nn.Identity())
+    with torch.no_grad():
+        diff = max_abs_diff(folded(dict(batch)), model(dict(batch)))
+    if not diff <= tolerance:
+        raise ValueError(f"batch norm folded into {len(pairs)} convolutions changes the outputs by {diff:.3g} "
+                         f"(more than {tolerance:g})")
+    return folded, len(pairs)
 
 
 def _cuda_graph_fn(fn: Callable[[Any], Any], batch: Mapping[str, Tensor], device: torch.device,
@@ -104,10 +197,16 @@ def build_inference(model: nn.Module, batch: Mapping[str, Tensor], device: torch
                     variant: Variant) -> tuple[Callable[[Mapping[str, Tensor]], Any], dict[str, Any], dict[str, Tensor]]:
     """``(fn, info, batch)`` for ``variant``: ``fn(batch)`` runs one inference forward of ``model``
     (moved to ``device``, eval mode) under the variant's autocast, memory format, compiler and
-    CUDA graph; ``info`` records what actually ran (``cuda_graph`` False on a CPU, ``compiled``
-    False after a compiler fallback); ``batch`` is the input in the variant's memory format."""
+    CUDA graph, with batch normalisation folded into the convolutions for a ``fold_bn`` variant
+    (a copy: ``model`` keeps its own); ``info`` records what actually ran (``cuda_graph`` False on a
+    CPU, ``compiled`` False after a compiler fallback, ``bn_folded`` the pairs folded); ``batch``
+    is the input in the variant's memory format."""
     dev = torch.device(device)
     model = model.to(dev).eval()
+    folded = 0
+    if variant.fold_bn:  # on the network's own layout, before any change of memory format
+        model, folded = fold_batchnorm(model.to(memory_format=torch.contiguous_format),
+                                       {k: v.to(dev) for k, v in batch.items()})
     if variant.channels_last:
         model = to_channels_last(model)
         batch = batch_to_channels_last(batch)
@@ -129,6 +228,8 @@ def build_inference(model: nn.Module, batch: Mapping[str, Tensor], device: torch
     else:
         fn = run
     info["compiled"] = bool(variant.compile and getattr(fwd, "compiled", False))
+    if variant.fold_bn:
+        info["bn_folded"] = folded
     return fn, info, batch
 
 

@@ -352,6 +352,9 @@ class EvalParams(Strict):
     save_predictions: int = Field(ge=0, le=MAX_SAVED_PREDICTIONS, description="test frames whose predictions are saved")
     depth_max_m: float = Field(gt=3.34, le=1000.0, description="metric-depth evaluation: ground truth capped at this "
                                "depth (m) and predictions clamped to it (the field's convention: 80 m)")
+    batch_size: int = Field(ge=1, le=256, description="test frames the network runs on together, each scored on its "
+                            "own outputs; 1 gives the committed scores (a frame's outputs move in their last bits "
+                            "with the batch it runs in)")
 
 
 class BenchmarkParams(Strict):

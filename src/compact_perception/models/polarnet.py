@@ -69,6 +69,7 @@ class PolarNet(nn.Module):
 
     tasks: tuple[str, ...] = ("ls",)
     argmax_tasks: tuple[str, ...] = ("ls",)  # softmax LS head: scored by its arg-max map (metrics.scored_outputs)
+    labelled_maps: tuple[str, ...] = ("ls",)  # its losses' labelled cells, found on the host (data.Labelled)
 
     def __init__(self, n_classes: int, in_ch: int = 15) -> None:
         super().__init__()
@@ -97,8 +98,10 @@ class PolarNet(nn.Module):
         """Cross-entropy + Lovasz-softmax (PolarSeg), unlabelled (all-zero one-hot) cells ignored."""
         L = losses_module()
         probs, target = outputs["ls"], batch["ls"]
-        ce = L.cross_entropy_onehot(log_probs(probs), target)
-        return {"ls": ce + L.lovasz_softmax(probs, target)}
+        lab = batch.get("labelled", {}).get("ls")  # where the cells are labelled, if found on the host
+        idx, classes = (lab.views[0], lab.classes) if lab is not None else (None, None)
+        ce = L.cross_entropy_onehot(log_probs(probs), target, idx)
+        return {"ls": ce + L.lovasz_softmax(probs, target, idx, classes)}
 
     def shared_layers(self) -> dict[str, list[str]]:
         """Single-task model: nothing is shared between tasks."""

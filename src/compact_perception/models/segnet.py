@@ -83,6 +83,7 @@ class GradNormSegNet(nn.Module):
 
     tasks: tuple[str, ...] = ("de", "ss")
     argmax_tasks: tuple[str, ...] = ("ss",)  # softmax SS head: scored by its arg-max map (metrics.scored_outputs)
+    labelled_maps: tuple[str, ...] = ("ss",)  # its SS loss's labelled pixels, found on the host (data.Labelled)
 
     def __init__(self, n_classes: int, n_views: int = 4) -> None:
         super().__init__()
@@ -98,7 +99,9 @@ class GradNormSegNet(nn.Module):
         """Pixel-wise CE (SS) and squared loss (DE), each averaged over the views."""
         L = losses_module()
         n = len(self.views)
-        ss = sum(L.cross_entropy_onehot(log_probs(outputs["ss"][:, v]), batch["ss"][:, v]) for v in range(n))
+        lab = batch.get("labelled", {}).get("ss")  # each view's labelled pixels, if found on the host
+        ss = sum(L.cross_entropy_onehot(log_probs(outputs["ss"][:, v]), batch["ss"][:, v],
+                                        lab.views[v] if lab is not None else None) for v in range(n))
         de = sum(L.squared_loss(outputs["de"][:, v], batch["de"][:, v]) for v in range(n))
         return {"de": de / n, "ss": ss / n}
 

@@ -94,6 +94,7 @@ class RunState:
     val_loader: Optional[DataLoader] = None
     live: Any = None                   # dvclive.Live on rank 0, None elsewhere
     synced_w: Any = None               # the weighting's w as last averaged over ranks (data-parallel runs)
+    epoch_sums: Any = None             # the running epoch's losses and metrics on the device (epoch.EpochSums)
 
     def elapsed(self) -> float:
         """Training seconds so far, earlier calls included."""

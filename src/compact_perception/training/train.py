@@ -303,14 +303,16 @@ def _open(run: RunState) -> None:
     spec, tp = run.spec, run.spec.params.train
     channels = catalog.MODELS[spec.model_id].lidar_channels
     workers = bounded(tp.num_workers)  # at most the usable cores (core.machine): no result changes
+    labelled = getattr(run.model, "labelled_maps", ())  # class maps whose labelled pixels the loader finds
     run.val_loader = make_loader(spec.cache_dir, "val", channels, spec.per_rank_batch, shuffle=False, seed=spec.seed,
-                                 num_workers=workers, drop_last=False, distributed=spec.dist.enabled)
+                                 num_workers=workers, drop_last=False, distributed=spec.dist.enabled,
+                                 labelled=labelled)
     if run.untrained_score is None:  # the Kaiming-initialised network
         run.untrained_score = selection_score(validate(run))
         log.info("%s/%s untrained val score %.4f", spec.dataset_id, spec.model_id, run.untrained_score)
     run.train_loader = make_loader(spec.cache_dir, "train", channels, spec.per_rank_batch, shuffle=True,
                                    seed=spec.seed, num_workers=workers, drop_last=True,
-                                   distributed=spec.dist.enabled)
+                                   distributed=spec.dist.enabled, labelled=labelled)
     if spec.dist.is_main:
         run.live = Live(str(spec.paths.live), dvcyaml=False, save_dvc_exp=False)
         for record in run.history:  # the logs hold exactly the epochs the checkpoint holds

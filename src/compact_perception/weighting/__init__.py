@@ -13,8 +13,8 @@ reference); build one with :func:`build_weighting`. Each class has a
 
 Interface (:class:`~.base.LossWeighting`)
 ----------------------------------------
-- ``tasks``: tuple of task keys; ``w``: 1-D float64 tensor in task order; ``weights``: dict
-  task -> float.
+- ``tasks``: tuple of task keys; ``w``: 1-D float64 tensor in task order, on the network's device
+  (``to(device)``); ``weights``: dict task -> float.
 - ``total(losses) -> Tensor``: eq. (8), ``sum_i w_i L_i`` with the weights as constants (detached);
   keys of ``losses`` that are not tasks (e.g. ``aux_*``) are added with weight 1.
 - ``backward(losses, model, scale) -> Tensor``: backpropagates the step into the network's
@@ -167,7 +167,9 @@ def build_weighting(
     """The weighting named by ``recipe.weighting`` for ``tasks``; adaptive ones read W's module
     names from ``model.shared_layers()`` (now if ``model`` is given, else at the first update).
     ``plateau_patience``/``plateau_factor``: TrainParams' values and ``recipe.plateau_rule``, for
-    MGN's weight-lr halving."""
+    MGN's weight-lr halving. The weighting's state lives on the device of ``model``'s parameters."""
     kw: dict[str, Any] = {"plateau_patience": plateau_patience, "plateau_factor": plateau_factor,
                           "plateau_rule": recipe.plateau_rule}
-    return WEIGHTINGS[recipe.weighting].from_recipe(recipe, tuple(tasks), model, **kw)
+    weighting = WEIGHTINGS[recipe.weighting].from_recipe(recipe, tuple(tasks), model, **kw)
+    first = next(model.parameters(), None) if model is not None else None
+    return weighting.to(first.device) if first is not None else weighting

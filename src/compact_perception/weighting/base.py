@@ -8,9 +8,19 @@ from torch import Tensor, nn
 
 from ..core.catalog import WEIGHTING_METHODS
 from ..core.config import Strict
+from ..core.errors import NonFinite
 from ..core.registry import Registry
 
-__all__ = ["LossWeighting", "WEIGHTINGS", "register", "recipe_params", "shared_weights"]
+__all__ = ["LossWeighting", "WEIGHTINGS", "finite_or_raise", "register", "recipe_params", "shared_weights"]
+
+
+def finite_or_raise(w: Tensor, what: str) -> Tensor:
+    """``w`` when every value is finite, else :class:`NonFinite` naming ``what`` and the values.
+    A host read of ``w``: a weighting calls it where a step reads anyway (MGN's update at the
+    epoch's last step, a float16 run's skipped-step logic), never in an ordinary fp32/bf16 step."""
+    if not bool(torch.isfinite(w).all()):
+        raise NonFinite(f"non-finite {what} ({[round(float(x), 6) for x in w.tolist()]})")
+    return w
 
 
 class LossWeighting:
@@ -23,6 +33,14 @@ class LossWeighting:
     before every :meth:`before_backward`; 1.0 = no scaling, the default). Weightings that take
     gradients of the losses themselves (GradNorm, MGN) scale by it and unscale their result,
     so float16 gradients do not underflow (:mod:`compact_perception.training.precision`).
+
+    Device: every tensor of the state (``w``, and a subclass's own: L_i(0), log-variances, their
+    optimiser, sums) lives on the network's device (:meth:`to`; :func:`~compact_perception.weighting.build_weighting`
+    moves it there), so a step's weighting arithmetic runs on the device and nothing travels
+    between host and device. Without loss scaling (fp32, bf16) no hook reads a device value in an
+    ordinary step: a non-finite value is left to the trainer's check of the epoch's sums and
+    weights (training/epoch.py). Under a float16 GradScaler, whose scale the trainer reads every
+    step anyway, the skipped-step logic reads what it needs (``_scaled`` is then true).
 
     Every concrete class declares ``params_model`` (the pydantic schema of its recipe section,
     named like its registry id; ``None`` when it has no settings). ``label`` (its name in the
@@ -59,6 +77,7 @@ class LossWeighting:
         # w is replaced when it changes, never edited in place (the data-parallel step tells a
         # change by identity: training/epoch.py)
         self.w: Tensor = torch.tensor(w, dtype=torch.float64)
+        self.device = torch.device("cpu")
         self.plateau_patience = int(plateau_patience)
         self.plateau_factor = float(plateau_factor)
 
@@ -79,6 +98,23 @@ class LossWeighting:
         """The tasks the network is built for when trained with this weighting: all of them,
         except for a method that trains some tasks only (``single``)."""
         return tuple(tasks)
+
+    # ------------------------------------------------------------------ device
+    def to(self, device: torch.device | str) -> "LossWeighting":
+        """Keep the weighting's state on ``device`` (the network's); returns ``self``. Call it before
+        the first step (a subclass moves its own tensors, optimisers' parameters included)."""
+        self.device = torch.device(device)
+        self.w = self.w.to(self.device)
+        return self
+
+    @property
+    def _scaled(self) -> bool:
+        """A float16 GradScaler scales this step's losses (its skipped-step logic may read values)."""
+        return float(self.grad_scale) != 1.0
+
+    def _device_tensor(self, values: Any, dtype: torch.dtype = torch.float64) -> Tensor:
+        """``values`` (numbers, a list, a tensor read from a checkpoint) as a tensor on the device."""
+        return torch.as_tensor(values, dtype=dtype).to(self.device)
 
     # ------------------------------------------------------------------ weights
     @property
@@ -151,8 +187,8 @@ class LossWeighting:
         self.set_weights(torch.tensor(state["w"], dtype=torch.float64))
 
     def set_weights(self, w: Tensor) -> None:
-        """Overwrite the loss weights (resume; agreement across data-parallel ranks)."""
-        self.w = w.detach().to(dtype=torch.float64).clone()
+        """Overwrite the loss weights (resume; agreement across data-parallel ranks), on the device."""
+        self.w = w.detach().to(device=self.device, dtype=torch.float64).clone()
 
     def log_values(self) -> dict[str, float]:
         """Values to log each epoch: ``w_<task>`` (subclasses add ``lr_w``)."""

@@ -158,6 +158,10 @@ class CAGradWeighting(LossWeighting):
     Float16 ``GradScaler``: every task loss is scaled before differentiation (the coefficients do
     not depend on a common scale); a non-finite Gram matrix (overflow) makes the update the plain
     sum, whose non-finite values make the scaler skip the step, and leaves ``w`` as it was.
+
+    Host reads: one per step, the T x T Gram matrix (taken on the device). The inner problem's
+    exact active-set enumeration (pivoting, data-dependent faces) runs on its Python floats, which
+    keeps its results the bytes they are; a device version would be another algorithm's rounding.
     """
 
     params_model = CAGradParams
@@ -178,9 +182,10 @@ class CAGradWeighting(LossWeighting):
         """T per-task backward passes, ``d`` on the shared parameters, ``.grad`` written."""
         tg = task_gradients(losses, self.tasks, model, scale)
         gram = shared_gram(tg)
-        if bool(torch.isfinite(gram).all()):
-            w_star, coeffs = cagrad_coefficients(gram.tolist(), self.c)
-            self.w = torch.tensor(coeffs, dtype=torch.float64)
+        Q = gram.tolist()  # the step's one host read: the inner problem is solved in Python floats
+        if all(math.isfinite(x) for row in Q for x in row):
+            w_star, coeffs = cagrad_coefficients(Q, self.c)
+            self.w = torch.tensor(coeffs, dtype=torch.float64, device=self.device)
             self.epoch_sum = [s + x for s, x in zip(self.epoch_sum, coeffs)]
             self.epoch_steps += 1
             self.last = {"gram": gram, "w_star": torch.tensor(w_star, dtype=torch.float64), "coeffs": self.w.clone()}

@@ -40,6 +40,10 @@ class DWAWeighting(LossWeighting):
     A non-finite step loss (a float16 overflow the loss scaler skips) is left out of that task's
     mean; an epoch in which some task has no finite step loss is not recorded (w unchanged, and
     it does not count towards the first two epochs). ``r_k`` divides by ``max(L_k(t-2), 1e-12)``.
+
+    The sums and counts are device tensors, added to without a host read (the sum of a finite
+    loss is the Python float sum it was: float64 adds from 0.0, in step order); the epoch's end
+    reads them once.
     """
 
     params_model = DWAParams
@@ -50,21 +54,28 @@ class DWAWeighting(LossWeighting):
         if not temperature > 0.0:
             raise ValueError(f"DWA temperature must be > 0, got {temperature}")
         self.temperature = float(temperature)
-        self.sums = [0.0] * self.T
-        self.counts = [0] * self.T
+        self._reset()
         self.history: list[list[float]] = []  # epoch means L(t-2), L(t-1), oldest first
         self.n_epochs = 0  # recorded epochs
 
+    def _reset(self, sums: Sequence[float] | None = None, counts: Sequence[int] | None = None) -> None:
+        self.sums = self._device_tensor([0.0] * self.T if sums is None else list(sums))
+        self.counts = self._device_tensor([0] * self.T if counts is None else list(counts), torch.int64)
+
+    def to(self, device: torch.device | str) -> "DWAWeighting":
+        super().to(device)
+        self.sums, self.counts = self.sums.to(self.device), self.counts.to(self.device)
+        return self
+
     def before_backward(self, step: int, n_steps: int, losses: Mapping[str, Tensor], model: nn.Module) -> None:
-        """Accumulate this step's task losses into the epoch's sums."""
+        """Accumulate this step's finite task losses into the epoch's sums (on the device)."""
         missing = [t for t in self.tasks if t not in losses]
         if missing:
             raise KeyError(f"losses lack task(s) {missing}; got {sorted(losses)}")
-        for i, t in enumerate(self.tasks):
-            v = float(losses[t].detach())
-            if math.isfinite(v):
-                self.sums[i] += v
-                self.counts[i] += 1
+        v = torch.stack([losses[t].detach().to(device=self.device, dtype=torch.float64) for t in self.tasks])
+        finite = torch.isfinite(v)
+        self.sums = torch.where(finite, self.sums + v, self.sums)
+        self.counts = self.counts + finite.to(torch.int64)
 
     def weights_from(self, older: Sequence[float], newer: Sequence[float]) -> Tensor:
         """Eq. (7) from the epoch means ``L(t-2)`` (``older``) and ``L(t-1)`` (``newer``)."""
@@ -75,25 +86,25 @@ class DWAWeighting(LossWeighting):
         return torch.tensor([self.T * x / z for x in e], dtype=torch.float64)
 
     def on_epoch_end(self, improved: bool) -> None:
-        """Close the epoch's means; from the third recorded epoch on, w for the next epoch."""
-        if all(n > 0 for n in self.counts):
-            means = [s / n for s, n in zip(self.sums, self.counts)]
+        """Close the epoch's means (one read of the sums); from the third recorded epoch on, w for
+        the next epoch."""
+        sums, counts = self.sums.tolist(), self.counts.tolist()
+        if all(n > 0 for n in counts):
+            means = [s / n for s, n in zip(sums, counts)]
             self.history = (self.history + [means])[-2:]
             self.n_epochs += 1
             if len(self.history) == 2:
-                self.w = self.weights_from(self.history[0], self.history[1])
-        self.sums = [0.0] * self.T
-        self.counts = [0] * self.T
+                self.w = self.weights_from(self.history[0], self.history[1]).to(self.device)
+        self._reset()
 
     def state_dict(self) -> dict[str, Any]:
         st = super().state_dict()
-        st.update(temperature=self.temperature, sums=list(self.sums), counts=list(self.counts),
+        st.update(temperature=self.temperature, sums=self.sums.tolist(), counts=self.counts.tolist(),
                   history=[list(h) for h in self.history], n_epochs=self.n_epochs)
         return st
 
     def load_state_dict(self, state: Mapping[str, Any]) -> None:
         super().load_state_dict(state)
-        self.sums = [float(x) for x in state["sums"]]
-        self.counts = [int(x) for x in state["counts"]]
+        self._reset([float(x) for x in state["sums"]], [int(x) for x in state["counts"]])
         self.history = [[float(x) for x in h] for h in state["history"]]
         self.n_epochs = int(state["n_epochs"])

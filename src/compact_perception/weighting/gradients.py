@@ -58,8 +58,9 @@ def task_gradients(losses: Mapping[str, Tensor], tasks: Sequence[str], model: nn
 
 
 def shared_gram(tg: TaskGradients) -> Tensor:
-    """``Q_ij = g_i . g_j`` over the shared parameters (float64, (T, T)); a task that does not
-    reach a shared parameter contributes zeros there."""
+    """``Q_ij = g_i . g_j`` over the shared parameters (float64, (T, T), on the gradients' device:
+    nothing is read on the host); a task that does not reach a shared parameter contributes zeros
+    there."""
     T = len(tg.per_task)
     rows = []
     for i in range(T):
@@ -70,24 +71,33 @@ def shared_gram(tg: TaskGradients) -> Tensor:
                 parts.append(torch.zeros(p.numel(), dtype=torch.float64, device=p.device) if g is None
                              else g.detach().reshape(-1).to(torch.float64))
         rows.append(torch.cat(parts) if parts else torch.zeros(1, dtype=torch.float64))
-    Q = torch.zeros(T, T, dtype=torch.float64)
+    Q = torch.zeros(T, T, dtype=torch.float64, device=rows[0].device)
     for i in range(T):  # elementwise products and sums: deterministic on CPU and CUDA (no cuBLAS)
         for j in range(i, T):
-            Q[i, j] = Q[j, i] = (rows[i] * rows[j]).sum().cpu()
+            Q[i, j] = Q[j, i] = (rows[i] * rows[j]).sum()
     return Q
 
 
-def write_combination(tg: TaskGradients, coeffs: Sequence[float]) -> None:
+def write_combination(tg: TaskGradients, coeffs: Sequence[float] | Tensor) -> None:
     """Write ``sum_k coeffs[k] g_k`` (shared parameters) or ``sum_k g_k`` (parameters at most one
     task reaches), plus the non-task gradient, into ``.grad``: added to an existing ``.grad``,
-    else set. Parameters no loss reaches are left alone."""
+    else set. Parameters no loss reaches are left alone. ``coeffs``: Python floats, or a float64
+    tensor on the device (not read): cast once to the gradient's dtype, each coefficient scales a
+    gradient as its Python float did (rounded to that dtype, then one multiply)."""
+    cast: dict[torch.dtype, tuple[Tensor, ...]] = {}  # a tensor's coefficients per gradient dtype, cast once
     for k, p in enumerate(tg.params):
         acc: Tensor | None = None
         for i, col in enumerate(tg.per_task):
             g = col[k]
             if g is None:
                 continue
-            term = g * float(coeffs[i]) if tg.shared[k] else g
+            if isinstance(coeffs, Tensor):
+                if g.dtype not in cast:
+                    cast[g.dtype] = coeffs.to(g.dtype).unbind()
+                c: Tensor | float = cast[g.dtype][i]
+            else:
+                c = float(coeffs[i])
+            term = g * c if tg.shared[k] else g
             acc = term if acc is None else acc + term
         if tg.aux[k] is not None:
             acc = tg.aux[k] if acc is None else acc + tg.aux[k]

@@ -44,6 +44,16 @@ class GradNormWeighting(GradNormCore):
         else:
             raise ValueError(f"unknown GradNorm optimizer {optimizer!r}; known: adam, sgd")
 
+    def to(self, device: torch.device | str) -> "GradNormWeighting":
+        """The weights, L_i(0) and the weights' own optimiser (its parameter) on ``device``: the
+        per-step update runs there (PyTorch keeps a non-fused Adam's step counter on the host)."""
+        super().to(device)
+        with torch.no_grad():
+            self._param.data = self._param.data.to(self.device)
+        if self.L0 is not None:
+            self.L0 = self.L0.to(self.device)
+        return self
+
     def on_epoch_end(self, improved: bool) -> None:
         """Constant weight lr (original GradNorm); only the bad-epoch count is kept."""
         self.bad_epochs = 0 if improved else self.bad_epochs + 1
@@ -57,16 +67,20 @@ class GradNormWeighting(GradNormCore):
 
     def after_backward(self, taken: bool = True) -> None:
         """The weights' own optimiser step on this step's gradient, the floor and renormalisation:
-        w(t+1). A step the GradScaler skipped (``taken`` false) moves neither w nor that optimiser."""
+        w(t+1). A step the GradScaler skipped (``taken`` false) moves neither w nor that optimiser.
+        Under the GradScaler a non-finite gradient or weight is :class:`NonFinite` here (a host
+        read); without it nothing is read: non-finite weights are found at the epoch's end
+        (training/epoch.py reads the weights with the epoch's sums)."""
         g, self._pending = self._pending, None
         if g is None or not taken:
             return
         self.opt.zero_grad(set_to_none=True)
-        self._param.grad = finite_or_raise(g, "GradNorm weight gradient").clone()
+        self._param.grad = (finite_or_raise(g, "GradNorm weight gradient") if self._scaled else g).clone()
         self.opt.step()
         with torch.no_grad():
             self._param.copy_(self._renormalise(self._param.detach()))
-        self.set_weights(finite_or_raise(self._param.detach(), "GradNorm loss weights"))
+        w = self._param.detach()
+        self.set_weights(finite_or_raise(w, "GradNorm loss weights") if self._scaled else w)
         self.n_updates += 1
 
     def state_dict(self) -> dict[str, Any]:

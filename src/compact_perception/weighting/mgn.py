@@ -16,7 +16,7 @@ from pydantic import Field, model_validator
 from ..core.config import ModelRecipe, Strict, check_lr_floor
 from ..core.errors import NonFinite
 from ..schedule import PlateauRule, plateau_due
-from .base import LossWeighting, recipe_params, register, shared_weights
+from .base import LossWeighting, finite_or_raise, recipe_params, register, shared_weights
 
 __all__ = ["GradNormCore", "MGNWeighting", "MgnParams", "finite_or_raise", "full_precision"]
 
@@ -41,13 +41,6 @@ def _retry_scales(grad_scale: float) -> tuple[float, ...]:
     """The loss scales a gradient norm is tried at: the GradScaler's, then none (1.0), where a
     float16 backward cannot overflow. With no loss scaling, 1.0 alone."""
     return (float(grad_scale), 1.0) if float(grad_scale) != 1.0 else (1.0,)
-
-
-def finite_or_raise(w: Tensor, what: str) -> Tensor:
-    """``w`` when every value is finite, else :class:`NonFinite` naming ``what`` and the values."""
-    if not bool(torch.isfinite(w).all()):
-        raise NonFinite(f"non-finite {what} ({[round(float(x), 6) for x in w.tolist()]})")
-    return w
 
 
 def full_precision(losses: Mapping[str, Tensor]) -> AbstractContextManager[Any]:
@@ -90,6 +83,11 @@ class GradNormCore(LossWeighting):
     losses are multiplied by ``grad_scale`` before differentiation and the norms divided by it
     (a non-finite scaled norm is taken again unscaled). With ``grad_scale == 1`` and float32
     losses the computation is exactly the float32 one.
+
+    On the device: L_i, L_i(0), the norms and w are device tensors and, without loss scaling, an
+    update reads nothing on the host (GradNorm updates every step). Each norm is the same float64
+    arithmetic as a Python float sum of the squared gradients' sums (from 0.0, in order) raised to
+    the power 0.5 (``pow``, not ``sqrt``: the two differ in the last bit now and then).
     """
 
     def __init__(
@@ -142,36 +140,54 @@ class GradNormCore(LossWeighting):
         missing = [t for t in self.tasks if t not in losses]
         if missing:
             raise KeyError(f"losses lack task(s) {missing}; got {sorted(losses)}")
-        return torch.tensor([float(losses[t].detach()) for t in self.tasks], dtype=torch.float64)
+        return torch.stack([losses[t].detach().to(torch.float64) for t in self.tasks])
 
     def _grad_norms(self, losses: Mapping[str, Tensor], model: nn.Module) -> Tensor:
-        """``n_i = ||grad_W L_i||_2`` (float64, (T,)); writes no ``.grad``. Under a GradScaler the
-        loss is scaled in and the norm scaled out; a scaled norm that overflowed is taken again
-        unscaled (:data:`_retry_scales`), and one that is not finite even then is :class:`NonFinite`."""
+        """``n_i = ||grad_W L_i||_2`` (float64, (T,), on the device); writes no ``.grad``. Under a
+        GradScaler the loss is scaled in and the norm scaled out; a scaled norm that overflowed is
+        taken again unscaled (:data:`_retry_scales`), and one that is not finite even then is
+        :class:`NonFinite` (read on the host: float16 runs only). Without loss scaling nothing is
+        read: a non-finite norm makes non-finite weights, which the trainer's checks find."""
         names = self._shared_names(model)
-        norms = []
+        norms: list[Tensor] = []
+        zero = torch.zeros((), dtype=torch.float64, device=self.device)
         with full_precision(losses):
             for t in self.tasks:
                 W = shared_weights(model, names[t])
                 L = _at_least_float32(losses[t])
                 if not L.requires_grad:
-                    norms.append(0.0)
-                    continue
-                for scale in _retry_scales(self.grad_scale):
-                    n = self._norm(L * scale, W) / scale if scale != 1.0 else self._norm(L, W)
-                    if math.isfinite(n):
-                        break
+                    norms.append(zero)
+                elif not self._scaled:
+                    norms.append(self._norm_device(L, W, zero))
                 else:
-                    raise NonFinite(f"non-finite {t} gradient norm for the {self.key} weights ({n})")
-                norms.append(n)
-        return torch.tensor(norms, dtype=torch.float64)
+                    norms.append(torch.tensor(self._scaled_norm(t, L, W), dtype=torch.float64, device=self.device))
+        return torch.stack(norms)
+
+    def _scaled_norm(self, task: str, L: Tensor, W: list[nn.Parameter]) -> float:
+        """The norm under a float16 GradScaler's scale, retried unscaled where it overflows."""
+        for scale in _retry_scales(self.grad_scale):
+            n = self._norm(L * scale, W) / scale if scale != 1.0 else self._norm(L, W)
+            if math.isfinite(n):
+                return n
+        raise NonFinite(f"non-finite {task} gradient norm for the {self.key} weights ({n})")
 
     @staticmethod
     def _norm(L: Tensor, W: list[nn.Parameter]) -> float:
-        """``||grad_W L||_2``, squares summed in float64; the graph is retained."""
+        """``||grad_W L||_2``, squares summed in float64 (read on the host); the graph is retained."""
         grads = torch.autograd.grad(L, W, retain_graph=True, allow_unused=True)
         sq = sum(float(g.detach().double().pow(2).sum()) for g in grads if g is not None)
         return sq ** 0.5
+
+    @staticmethod
+    def _norm_device(L: Tensor, W: list[nn.Parameter], zero: Tensor) -> Tensor:
+        """:meth:`_norm` on the device, the same bytes: the float64 sum from 0.0 in the same order,
+        then ``pow(sq, 0.5)`` of one element (the scalar ``pow`` Python's ``**`` calls)."""
+        grads = torch.autograd.grad(L, W, retain_graph=True, allow_unused=True)
+        sq = zero
+        for g in grads:
+            if g is not None:
+                sq = sq + g.detach().double().pow(2).sum()
+        return torch.pow(sq, torch.full_like(sq, 0.5))
 
     def _targets(self, G: Tensor, L: Tensor) -> tuple[Tensor, Tensor]:
         """Eq. (10)-(14): relative inverse rates r and the detached targets ``G_avg r^alpha``."""
@@ -197,7 +213,7 @@ class GradNormCore(LossWeighting):
         l_grad = (target - G).abs().sum()
         (g,) = torch.autograd.grad(l_grad, w)
         self.last = {"norms": n, "G": G.detach(), "r": r, "target": target, "L": L,
-                     "l_grad": float(l_grad.detach()), "grad_w": g.detach()}
+                     "l_grad": l_grad.detach(), "grad_w": g.detach()}
         return g.detach()
 
     def after_backward(self, taken: bool = True) -> None:
@@ -235,7 +251,7 @@ class GradNormCore(LossWeighting):
         self.lr = float(state["lr"])
         self.bad_epochs = int(state["bad_epochs"])
         self.n_updates = int(state["n_updates"])
-        self.L0 = None if state["L0"] is None else torch.tensor(state["L0"], dtype=torch.float64)
+        self.L0 = None if state["L0"] is None else self._device_tensor(state["L0"])
 
     def log_values(self) -> dict[str, float]:
         out = super().log_values()
@@ -299,19 +315,19 @@ class MGNWeighting(GradNormCore):
         w.requires_grad_(True)
         with full_precision(losses):
             G = self._authors_G(losses, model, w)
-            r, target = self._targets(G.detach().double().cpu(), L)
+            r, target = self._targets(G.detach().double(), L)
             l_mgn = (target.to(G) - G).abs().sum()
             # into w.grad AND the network's .grad (authors' code); scaled like the total loss so
             # the GradScaler's unscale_ of .grad leaves the second-order terms at their value (an
             # overflow there is the scaler's to find: it skips the step, and these weights with it)
             (l_mgn if scale == 1.0 else l_mgn * scale).backward(retain_graph=True)
-            gw = w.grad.detach().double().cpu()
+            gw = w.grad.detach().double()
             gw = gw if scale == 1.0 else gw / scale
             if scale != 1.0 and not bool(torch.isfinite(gw).all()):  # w's share taken again, unscaled
-                gw = torch.autograd.grad(l_mgn, w, retain_graph=True)[0].detach().double().cpu()
+                gw = torch.autograd.grad(l_mgn, w, retain_graph=True)[0].detach().double()
         g = gw + L  # + dL_total/dw_i = L_i
-        self.last = {"G": G.detach().double().cpu(), "r": r, "target": target, "L": L,
-                     "l_grad": float(l_mgn.detach()), "grad_w": g}
+        self.last = {"G": G.detach().double(), "r": r, "target": target, "L": L,
+                     "l_grad": l_mgn.detach(), "grad_w": g}
         return g
 
     @classmethod

@@ -74,27 +74,44 @@ class PCGradWeighting(LossWeighting):
         self.generator = torch.Generator(device="cpu")
         self.generator.manual_seed(self.seed)
         self.epoch_steps = 0
-        self.epoch_conflicts = 0
+        self.epoch_conflicts: Tensor | int = 0  # a device count during an epoch
         self.conflicts_per_step = 0.0  # mean over the last finished epoch
         self.last: dict[str, Any] = {}
 
-    def project(self, gram: Tensor) -> tuple[list[float], int]:
-        """Algorithm 1 on the Gram matrix: returns ``c`` with ``sum_i g_i^PC = sum_k c_k g_k`` and
-        the number of projections made. Draws T permutations from the generator."""
-        T = self.T
-        Q = gram.tolist()
-        A = [[float(i == k) for k in range(T)] for i in range(T)]  # g_i^PC = sum_k A[i][k] g_k
-        n = 0
+    def to(self, device: torch.device | str) -> "PCGradWeighting":
+        """The generator of the orders on ``device`` too (a fresh one, seeded with ``seed``, when the
+        device changes: call it before the first step)."""
+        super().to(device)
+        if self.generator.device.type != self.device.type:
+            self.generator = torch.Generator(device=self.device)
+            self.generator.manual_seed(self.seed)
+        return self
+
+    def project(self, gram: Tensor) -> tuple[Tensor, Tensor]:
+        """Algorithm 1 on the Gram matrix, on its device without a host read: returns ``c`` (float64,
+        (T,)) with ``sum_i g_i^PC = sum_k c_k g_k`` and the number of projections made (an int64
+        0-d tensor). Draws T permutations from the generator.
+
+        The same float64 arithmetic, in the same order, as the loop over Python floats it replaces:
+        each dot product ``sum_k A[i][k] Q[k][j]`` and each coefficient ``sum_i A[i][k]`` is a
+        sequential sum from 0 (``cumsum``'s last element), a skipped projection (``j == i``, no
+        conflict, a zero ``g_j``) a ``where`` that keeps the old value."""
+        T, dev = self.T, gram.device
+        A = torch.eye(T, dtype=torch.float64, device=dev)  # g_i^PC = sum_k A[i][k] g_k
+        n = torch.zeros((), dtype=torch.int64, device=dev)
+        diag = torch.diagonal(gram)
         for i in range(T):
-            order = torch.randperm(T, generator=self.generator).tolist()
-            for j in order:
-                if j == i:
-                    continue
-                dot = sum(A[i][k] * Q[k][j] for k in range(T))
-                if dot < 0.0 and Q[j][j] > 0.0:
-                    A[i][j] -= dot / Q[j][j]
-                    n += 1
-        return [sum(A[i][k] for i in range(T)) for k in range(T)], n
+            order = torch.randperm(T, generator=self.generator, device=dev)
+            row = A[i]
+            for pos in range(T):
+                j = order[pos:pos + 1]
+                dot = torch.cumsum(row * gram.index_select(1, j).reshape(T), 0)[-1]
+                qjj = diag.index_select(0, j).reshape(())
+                hit = (j.reshape(()) != i) & (dot < 0.0) & (qjj > 0.0)
+                aij = row.index_select(0, j)
+                row.index_copy_(0, j, torch.where(hit, aij - dot / qjj, aij))
+                n = n + hit.to(torch.int64)
+        return torch.cumsum(A, 0)[-1], n
 
     def backward(self, losses: Mapping[str, Tensor], model: nn.Module,
                  scale: Callable[[Tensor], Tensor] = lambda t: t) -> Tensor:
@@ -102,24 +119,25 @@ class PCGradWeighting(LossWeighting):
         tg = task_gradients(losses, self.tasks, model, scale)
         gram = shared_gram(tg)
         coeffs, n = self.project(gram)  # always draws, so the stream does not depend on overflow
-        if not bool(torch.isfinite(gram).all()):
-            coeffs, n = [1.0] * self.T, 0
+        finite = torch.isfinite(gram).all()
+        coeffs = torch.where(finite, coeffs, torch.ones_like(coeffs))
+        n = torch.where(finite, n, torch.zeros_like(n))
         write_combination(tg, coeffs)
         self.epoch_steps += 1
-        self.epoch_conflicts += n
-        self.last = {"gram": gram, "coeffs": torch.tensor(coeffs, dtype=torch.float64), "conflicts": n}
+        self.epoch_conflicts = self.epoch_conflicts + n
+        self.last = {"gram": gram, "coeffs": coeffs, "conflicts": n}
         return unweighted_total(losses, self.tasks)
 
     def on_epoch_end(self, improved: bool) -> None:
         """Closes the epoch's conflict count (nothing else adapts)."""
         if self.epoch_steps:
-            self.conflicts_per_step = self.epoch_conflicts / self.epoch_steps
+            self.conflicts_per_step = int(self.epoch_conflicts) / self.epoch_steps
         self.epoch_steps = self.epoch_conflicts = 0
 
     def state_dict(self) -> dict[str, Any]:
         s = super().state_dict()
         s.update(seed=self.seed, generator=self.generator.get_state().clone(), epoch_steps=self.epoch_steps,
-                 epoch_conflicts=self.epoch_conflicts, conflicts_per_step=self.conflicts_per_step)
+                 epoch_conflicts=int(self.epoch_conflicts), conflicts_per_step=self.conflicts_per_step)
         return s
 
     def load_state_dict(self, state: Mapping[str, Any]) -> None:

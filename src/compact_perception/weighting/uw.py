@@ -57,27 +57,64 @@ class UncertaintyWeighting(LossWeighting):
         self.lr = float(lr)
         self.s = torch.nn.Parameter(torch.zeros(self.T, dtype=torch.float64))
         self.opt = torch.optim.Adam([self.s], lr=self.lr)
-        self.n_updates = 0
+        self._updates = torch.zeros((), dtype=torch.int64)  # steps whose losses were finite
         self.last: dict[str, Any] = {}
+
+    def to(self, device: torch.device | str) -> "UncertaintyWeighting":
+        """s, its Adam (through its parameter) and w on ``device``."""
+        super().to(device)
+        with torch.no_grad():
+            self.s.data = self.s.data.to(self.device)
+        self._updates = self._updates.to(self.device)
+        return self
+
+    @property
+    def n_updates(self) -> int:
+        """Adam steps taken on s (steps whose task losses were all finite); a host read."""
+        return int(self._updates)
 
     def backward(self, losses: Mapping[str, Tensor], model: nn.Module,
                  scale: Callable[[Tensor], Tensor] = lambda t: t) -> Tensor:
-        """Network backward of ``L_UW`` (w constant), then one Adam step on s."""
+        """Network backward of ``L_UW`` (w constant), then one Adam step on s.
+
+        Nothing is read on the host without loss scaling: the step's ``L_UW`` adds ``sum_i s_i``
+        on the device (cast to the total's dtype, as adding the Python float did), and a step with
+        a non-finite task loss takes Adam's step on a zero gradient and then puts s, w and Adam's
+        moments back (so they stay unchanged; Adam's step count, on the host, still counts it: in
+        fp32 and bf16 such a step ends the run at the epoch's last step anyway). Under a float16
+        GradScaler, which skips such steps, the finiteness is read on the host and the step is left
+        out entirely, as before."""
         total = self.total(losses)  # checks every task is present
         scale(total).backward()
-        L = torch.tensor([float(losses[t].detach()) for t in self.tasks], dtype=torch.float64)
+        L = torch.stack([losses[t].detach().to(torch.float64) for t in self.tasks])
         s = self.s.detach().clone()
-        objective = total.detach() + float(s.sum())
+        objective = total.detach() + s.sum().to(total.dtype)
         grad_s = 1.0 - torch.exp(-s) * L
         self.last = {"L": L, "s": s, "grad_s": grad_s}
-        if bool(torch.isfinite(L).all()):
-            self.opt.zero_grad(set_to_none=True)
-            self.s.grad = grad_s.clone()
-            self.opt.step()
-            self.s.grad = None
-            self.n_updates += 1
-            self.w = torch.exp(-self.s.detach())
+        if self._scaled:
+            if bool(torch.isfinite(L).all()):
+                self._adam_step(grad_s)
+                self._updates = self._updates + 1
+                self.w = torch.exp(-self.s.detach())
+            return objective
+        finite = torch.isfinite(L).all()
+        st = self.opt.state.get(self.s)
+        before = [t.clone() for t in (st["exp_avg"], st["exp_avg_sq"])] if st else None
+        self._adam_step(torch.where(finite, grad_s, torch.zeros_like(grad_s)))
+        with torch.no_grad():
+            self.s.copy_(torch.where(finite, self.s, s))
+            st = self.opt.state[self.s]
+            for key, old in zip(("exp_avg", "exp_avg_sq"), before or [torch.zeros_like(s)] * 2):
+                st[key].copy_(torch.where(finite, st[key], old))
+        self._updates = self._updates + finite.to(torch.int64)
+        self.w = torch.where(finite, torch.exp(-self.s.detach()), self.w)
         return objective
+
+    def _adam_step(self, grad: Tensor) -> None:
+        self.opt.zero_grad(set_to_none=True)
+        self.s.grad = grad.clone()
+        self.opt.step()
+        self.s.grad = None
 
     def state_dict(self) -> dict[str, Any]:
         st = super().state_dict()
@@ -87,16 +124,18 @@ class UncertaintyWeighting(LossWeighting):
     def load_state_dict(self, state: Mapping[str, Any]) -> None:
         super().load_state_dict(state)  # w (through set_weights), then s exactly as saved
         with torch.no_grad():
-            self.s.copy_(torch.tensor(state["s"], dtype=torch.float64))
+            self.s.copy_(self._device_tensor(state["s"]))
         self.w = torch.exp(-self.s.detach())
         self.opt.load_state_dict(state["optimizer"])
-        self.n_updates = int(state["n_updates"])
+        self._updates = self._device_tensor(int(state["n_updates"]), torch.int64)
 
     def set_weights(self, w: Tensor) -> None:
-        """Overwrite w (data-parallel agreement, resume): ``s = -log w`` follows."""
+        """Overwrite w (data-parallel agreement, resume): ``s = -log w`` follows. Weights given on the
+        host (a checkpoint's, a caller's) must be > 0; on a GPU they are not read back (the
+        data-parallel mean of the ranks' positive weights is positive)."""
+        if w.device.type == "cpu" and not bool((w > 0).all()):
+            raise ValueError(f"uncertainty weights must be > 0, got {w.tolist()}")
         super().set_weights(w)
-        if not bool((self.w > 0).all()):
-            raise ValueError(f"uncertainty weights must be > 0, got {self.w.tolist()}")
         with torch.no_grad():
             self.s.copy_(-torch.log(self.w))
 
