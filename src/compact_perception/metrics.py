@@ -212,13 +212,21 @@ def metric_tensors(outputs: Mapping[str, Tensor], targets: Mapping[str, Tensor],
     """The batch's task metrics of :func:`compute_metrics` (``mae_de``, ``iou_ss``, ``iou_ls``,
     ``iou_bevp``, those present in both dicts) as 0-d float64 tensors on the outputs' device: no
     value is read by the host (the training loop sums them on the device)."""
+    return _task_metrics(outputs, targets, argmax_tasks, mae, iou)
+
+
+def _task_metrics(outputs: Mapping[str, Tensor], targets: Mapping[str, Tensor], argmax_tasks: Collection[str],
+                  depth: Callable[[Tensor, Tensor], Tensor],
+                  overlap: Callable[[Tensor, Tensor], Tensor]) -> dict[str, Tensor]:
+    """``mae_de`` by ``depth`` and ``iou_<t>`` by ``overlap`` of the tasks in both dicts, on what
+    eq. (5) scores (:func:`scored_outputs`, :func:`eq5_inputs`)."""
     outputs = eq5_inputs(scored_outputs(outputs, argmax_tasks), targets)
     out: dict[str, Tensor] = {}
     if "de" in outputs and "de" in targets:
-        out["mae_de"] = mae(outputs["de"], targets["de"])
+        out["mae_de"] = depth(outputs["de"], targets["de"])
     for t in ("ss", "ls", "bevp"):
         if t in outputs and t in targets:
-            out[f"iou_{t}"] = iou(outputs[t], targets[t])
+            out[f"iou_{t}"] = overlap(outputs[t], targets[t])
     return out
 
 
@@ -259,13 +267,7 @@ def compute_metrics_per_sample(outputs: Mapping[str, Tensor], targets: Mapping[s
 
     Per-frame scores only (``catalog.SCORES[k].per_frame``: TM; MV is not a per-frame quantity,
     eq. 7 takes the test-set means)."""
-    outputs = eq5_inputs(scored_outputs(outputs, argmax_tasks), targets)
-    out: dict[str, Tensor] = {}
-    if "de" in outputs and "de" in targets:
-        out["mae_de"] = mae_per_sample(outputs["de"], targets["de"])
-    for t in ("ss", "ls", "bevp"):
-        if t in outputs and t in targets:
-            out[f"iou_{t}"] = iou_per_sample(outputs[t], targets[t])
+    out = _task_metrics(outputs, targets, argmax_tasks, mae_per_sample, iou_per_sample)
     terms = score_terms(out)
     if terms is not None:
         out.update({k: catalog.SCORES[k].of_terms(*terms) for k in catalog.per_frame_scores()})
