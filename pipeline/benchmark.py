@@ -27,6 +27,8 @@ from compact_perception.models import DATASET_SPECS, build_model
 from compact_perception.efficiency import (CPU_MEMORY_METHOD, CUDA_MEMORY_METHOD, device_name,
                                                    dummy_batch, measure_fps, measure_model, measure_onnx)
 
+from compact_perception.timing import table3_inference
+
 from ._common import start
 
 log = logging.getLogger("pipeline.benchmark")
@@ -64,6 +66,8 @@ def main(argv: list[str] | None = None) -> None:
                 batch = dummy_batch(model, n_seg=spec.n_seg, has_dvs=spec.has_dvs, resolution=S,
                                     n_views=spec.n_views, device=device, seed=params.seed)
                 res = measure_model(model, batch, device, bp.warmup, bp.runs)
+                if device.type == "cuda":  # Table III at the hardware's pace, eager fp32 (above) beside it
+                    res["hardware_pace"] = table3_inference(model, batch, device, bp.warmup, bp.runs)
                 if m.startswith("compact") and not args.no_onnx:
                     cpu_ms = res["latency_ms"]
                     if device.type != "cpu":  # the ratio compares the two runtimes on the same CPU

@@ -92,3 +92,39 @@ def test_a_fold_bn_variant_runs_on_the_cpu():
     with torch.inference_mode():
         assert max_abs_diff(fn(b), model(batch)) <= FOLD_TOLERANCE
     assert any(isinstance(m, nn.BatchNorm2d) for m in model.modules())
+
+
+# ----------------------------------------------------------------------------- Table III at the hardware's pace
+def test_fastest_exact_picks_the_fastest_within_the_tolerance():
+    from compact_perception.timing import EXACT_TOLERANCE, fastest_exact
+
+    results = [{"name": "fp32", "fps": 10.0, "max_abs_diff": 0.0},
+               {"name": "bf16_weights", "fps": 50.0, "max_abs_diff": 4e-3},          # faster, not exact
+               {"name": "fp32+fold_bn", "fps": 14.0, "max_abs_diff": 2e-6},
+               {"name": "fp32+fold_bn+cuda_graph", "error": "RuntimeError: no CUDA"},
+               {"name": "fp32+cuda_graph", "fps": 30.0, "max_abs_diff": EXACT_TOLERANCE * 2}]
+    assert fastest_exact(results)["name"] == "fp32+fold_bn"
+    assert fastest_exact(results, tolerance=1e-2)["name"] == "bf16_weights"
+    assert fastest_exact([{"name": "x", "error": "e"}]) is None
+
+
+def test_table3_inference_on_a_cpu_times_every_variant_and_names_the_fastest_exact():
+    """The benchmark stage's CUDA path, on a CPU (no CUDA graphs): float32 eager beside the fastest
+    variant within the exact tolerance; the network cast to bf16 (weights and inputs, no autocast)
+    runs and is reported, but its outputs are too far from float32 to count as exact."""
+    from compact_perception.efficiency import dummy_batch
+    from compact_perception.models import build_model
+    from compact_perception.timing import EXACT_TOLERANCE, table3_inference, table3_variants
+
+    torch.manual_seed(0)
+    model = build_model("compact_15l", "A").eval()
+    batch = dummy_batch(model, n_seg=23, has_dvs=True, resolution=32, device="cpu")
+    names = [v.name for v in table3_variants("cpu")]
+    assert names[0] == "fp32" and not any("cuda_graph" in n for n in names) and "bf16_weights+fold_bn" in names
+    out = table3_inference(model, batch, "cpu", warmup=1, runs=2)
+    assert out["eager_fp32"]["name"] == "fp32" and out["eager_fp32"]["max_abs_diff"] == 0.0
+    best = out["fastest_exact"]
+    assert best["max_abs_diff"] <= EXACT_TOLERANCE and best["fps"] >= out["eager_fp32"]["fps"]
+    low = next(r for r in out["variants"] if r["name"] == "bf16_weights+fold_bn")
+    assert "error" not in low and low["max_abs_diff"] > EXACT_TOLERANCE
+    assert next(p for p in model.parameters()).dtype == torch.float32  # the caller's network is left as it was

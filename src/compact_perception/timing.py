@@ -36,13 +36,20 @@ from .efficiency import device_name, measure_fps, synchronize
 
 log = logging.getLogger(__name__)
 
-__all__ = ["FOLD_TOLERANCE", "Variant", "benchmark_variants", "build_inference", "default_variants", "fold_batchnorm",
-           "max_abs_diff"]
+__all__ = ["EXACT_TOLERANCE", "FOLD_TOLERANCE", "Variant", "benchmark_variants", "build_inference", "default_variants",
+           "fastest_exact", "fold_batchnorm", "max_abs_diff", "table3_inference", "table3_variants"]
 
 #: The largest absolute output difference a folded network may show against the unfolded one in
 #: float32 (the project's networks end in sigmoids, softmaxes and a depth map in [0, 1]; measured
 #: on the compact network: about 1e-6).
 FOLD_TOLERANCE = 1e-4
+
+#: A variant is *exact* when its outputs differ from float32 eager's by at most this: float32
+#: rounding of a reordered computation (CUDA graphs replay the same kernels; folded batch norms
+#: round their merged weights), not a reduced precision (bf16 / fp16 move outputs by ~1e-3 to 1e-2).
+EXACT_TOLERANCE = FOLD_TOLERANCE
+
+_WEIGHT_DTYPES = {"bf16": torch.bfloat16, "fp16": torch.float16}
 
 
 @dataclass(frozen=True)
@@ -55,6 +62,7 @@ class Variant:
     compile: bool = False
     cuda_graph: bool = False
     fold_bn: bool = False
+    weights: str = "fp32"   # "bf16" / "fp16": the network and its inputs cast to that type (no autocast)
 
 
 def default_variants(device: torch.device | str) -> list[Variant]:
@@ -78,6 +86,53 @@ def default_variants(device: torch.device | str) -> list[Variant]:
         return out
     return [Variant("fp32"), Variant("bf16", "bf16"), Variant("channels_last", channels_last=True),
             Variant("bf16+channels_last", "bf16", channels_last=True)]
+
+
+def table3_variants(device: torch.device | str) -> list[Variant]:
+    """The variants the benchmark stage times for Table III at the hardware's pace: float32 eager
+    (the reference, Table III's own column), the exact candidates (CUDA graphs, folded batch norms,
+    channels-last) and the network cast to bf16 / fp16 (weights and inputs cast once, no autocast
+    per call), reported but not exact. CUDA graphs only on CUDA; bf16 only where the device has it."""
+    dev = torch.device(device)
+    cuda = dev.type == "cuda"
+    graphs = [False, True] if cuda else [False]
+    out = [Variant("fp32")]
+    for g in graphs:
+        tag = "+cuda_graph" if g else ""
+        if g:
+            out.append(Variant("fp32+cuda_graph", cuda_graph=True))
+        out += [Variant(f"fp32+fold_bn{tag}", fold_bn=True, cuda_graph=g),
+                Variant(f"fp32+fold_bn+channels_last{tag}", fold_bn=True, channels_last=True, cuda_graph=g)]
+    low = ["fp16"] if cuda else []
+    if not cuda or torch.cuda.is_bf16_supported(including_emulation=False):
+        low.append("bf16")
+    for w in low:
+        out += [Variant(f"{w}_weights+fold_bn{'+cuda_graph' if g else ''}", fold_bn=True, cuda_graph=g, weights=w)
+                for g in graphs]
+    return out
+
+
+def fastest_exact(results: list[dict[str, Any]], tolerance: float = EXACT_TOLERANCE) -> dict[str, Any] | None:
+    """The fastest timed result of :func:`benchmark_variants` whose outputs are within
+    ``tolerance`` of float32 eager's (:data:`EXACT_TOLERANCE`); ``None`` when none was timed."""
+    exact = [r for r in results if "fps" in r and r.get("max_abs_diff", float("inf")) <= tolerance]
+    return max(exact, key=lambda r: r["fps"], default=None)
+
+
+def table3_inference(model: nn.Module, batch: Mapping[str, Tensor], device: torch.device | str,
+                     warmup: int, runs: int) -> dict[str, Any]:
+    """Table III at the hardware's pace (the benchmark stage, on CUDA): every
+    :func:`table3_variants` variant timed, the fastest exact one, and float32 eager beside it."""
+    results = benchmark_variants(model, batch, device, table3_variants(device), warmup, runs)
+    keep = ("name", "fps", "latency_ms", "max_abs_diff", "speedup", "cuda_graph", "bn_folded", "error")
+    best = fastest_exact(results)
+    eager = next((r for r in results if r["name"] == "fp32" and "fps" in r), None)
+    return {
+        "exact_tolerance": EXACT_TOLERANCE,
+        "eager_fp32": {k: eager[k] for k in keep if k in eager} if eager else None,
+        "fastest_exact": {k: best[k] for k in keep if k in best} if best else None,
+        "variants": [{k: r[k] for k in keep if k in r} for r in results],
+    }
 
 
 def _outputs(out: Any) -> dict[str, Tensor]:
@@ -207,6 +262,10 @@ def build_inference(model: nn.Module, batch: Mapping[str, Tensor], device: torch
     if variant.fold_bn:  # on the network's own layout, before any change of memory format
         model, folded = fold_batchnorm(model.to(memory_format=torch.contiguous_format),
                                        {k: v.to(dev) for k, v in batch.items()})
+    if variant.weights != "fp32":  # the network and its floating inputs in the reduced type, once
+        low = _WEIGHT_DTYPES[variant.weights]
+        model = (copy.deepcopy(model) if not variant.fold_bn else model).to(dtype=low)
+        batch = {k: v.to(low) if v.is_floating_point() else v for k, v in batch.items()}
     if variant.channels_last:
         model = to_channels_last(model)
         batch = batch_to_channels_last(batch)
