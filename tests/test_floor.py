@@ -15,7 +15,8 @@ import torch
 from compact_perception.core.cache import write_cache
 from compact_perception.core.classes import BEV_NAMES, CARLA_NAMES
 from compact_perception.evaluate import evaluate_floors
-from compact_perception.floor import FixedPredictor, fit_trivial, floor_of, margins
+from compact_perception.core.floor_rule import FLOOR_PREDICTORS
+from compact_perception.floor import TRIVIAL, FixedPredictor, fit_trivial, floor_of, margins
 from compact_perception.geometry import VIEWS
 
 S, V, C, CB = 16, len(VIEWS), len(CARLA_NAMES), len(BEV_NAMES)
@@ -112,6 +113,13 @@ def test_floor_of_takes_the_better_predictor_per_metric():
     floors = {"p": {"mae_de": 0.2, "iou_ss": 0.4, "iou_ls": 0.1, "iou_bevp": 0.3, "tm": 2.2},
               "g": {"mae_de": 0.3, "iou_ss": 0.5, "iou_ls": 0.0, "iou_bevp": 0.3, "tm": 2.5}}
     assert floor_of(floors) == {"mae_de": 0.2, "iou_ss": 0.5, "iou_ls": 0.1, "iou_bevp": 0.3, "tm": 2.2}
+
+
+def test_every_trivial_predictor_is_fitted_under_its_core_id_and_label():
+    """The report reads the predictors' ids and labels from core (no torch); evaluation fits one
+    predictor per id there, in the same order (the report's rows), under the same label."""
+    assert tuple(TRIVIAL.keys()) == tuple(FLOOR_PREDICTORS.keys()) == ("floor_pixel", "floor_global")
+    assert [TRIVIAL[t].label for t in TRIVIAL.keys()] == ["Floor (per-pixel prior)", "Floor (global prior)"]
 
 
 def test_margins_are_positive_when_better():

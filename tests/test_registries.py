@@ -176,13 +176,17 @@ def test_every_network_is_registered_by_its_own_module():
 
 
 def test_depth_metrics_derive_from_their_registry():
-    """A new depth metric is one entry of metrics.DEPTH_METRICS: evaluation computes and
-    summarises it, the report's extra-metrics table gets its columns, label and decimals."""
+    """A new depth metric is one entry of core.depth_metrics.DEPTH_METRICS (the one evaluation's
+    metrics module computes with): evaluation computes and summarises it, the report's
+    extra-metrics table gets its columns, label and decimals."""
     import torch
 
-    from compact_perception import evaluate
-    from compact_perception.metrics import DEPTH_METRICS, depth_errors_per_sample
+    from compact_perception import evaluate, metrics
+    from compact_perception.core.depth_metrics import DEPTH_METRICS
+    from compact_perception.metrics import depth_errors_per_sample
     from compact_perception.report.tables import extra
+
+    assert metrics.DEPTH_METRICS is DEPTH_METRICS
 
     keys = tuple(DEPTH_METRICS.keys())
     assert evaluate.DEPTH_COLUMNS == keys and extra.EXTRA_DEPTH == keys

@@ -22,7 +22,9 @@ nothing by eq. (5), and that class for the arg-max rule of the extra metrics
 (:func:`~compact_perception.metrics.iou_argmax_per_sample`), which scores labelled pixels only.
 
 :func:`floor_of` takes the better of the two per metric: the per-task floor a model's margin
-(:func:`margins`) and the report's "above the floor" gate are measured against.
+(:func:`margins`) and the report's "above the floor" gate are measured against. The predictors'
+ids and labels, :func:`floor_of` and :func:`margins` are :mod:`compact_perception.core.floor_rule`'s
+(re-exported here), so the report reads them without torch.
 """
 from __future__ import annotations
 
@@ -36,6 +38,7 @@ from torch import Tensor, nn
 
 from .core import catalog
 from .core.cache import read_meta, read_split
+from .core.floor_rule import FLOOR_PREDICTORS, floor_of, margins
 from .core.registry import Registry
 
 __all__ = ["TrivialInfo", "TRIVIAL", "FixedPredictor", "fit_trivial", "floor_of", "margins", "NO_LABEL",
@@ -114,10 +117,18 @@ def _fit(arrays: Mapping[str, np.ndarray], n_cls: int, per_pixel: bool) -> dict[
     }
 
 
-#: The trivial predictors, in the order of the report's rows.
+#: The trivial predictors, in the order of the report's rows: one fit per id of
+#: :data:`.core.floor_rule.FLOOR_PREDICTORS`, which gives each its label.
 TRIVIAL: Registry[TrivialInfo] = Registry("trivial predictor", ordered=True)
-TRIVIAL.register("floor_pixel")(TrivialInfo("Floor (per-pixel prior)", lambda a, c: _fit(a, c, per_pixel=True)))
-TRIVIAL.register("floor_global")(TrivialInfo("Floor (global prior)", lambda a, c: _fit(a, c, per_pixel=False)))
+
+
+def _register(trivial_id: str, fit: Callable[[Mapping[str, np.ndarray], int], dict[str, np.ndarray]]) -> None:
+    """Register ``fit`` for ``trivial_id`` under its label in ``core.floor_rule`` (an id missing there fails)."""
+    TRIVIAL.register(trivial_id)(TrivialInfo(FLOOR_PREDICTORS[trivial_id], fit))
+
+
+_register("floor_pixel", lambda a, c: _fit(a, c, per_pixel=True))
+_register("floor_global", lambda a, c: _fit(a, c, per_pixel=False))
 
 
 class FixedPredictor(nn.Module):
@@ -146,26 +157,3 @@ def fit_trivial(trivial_id: str, cache_dir: str | Path) -> FixedPredictor:
     meta = read_meta(cache_dir)
     arrays = read_split(cache_dir, "train", meta).arrays
     return FixedPredictor(TRIVIAL[trivial_id].fit(arrays, len(meta["seg_classes"])))
-
-
-def floor_of(floors: Mapping[str, Mapping[str, float]]) -> dict[str, float]:
-    """Per task metric, the best test-set mean of the trivial predictors ``floors`` (id -> metric
-    -> mean): the floor a model must beat on that task; and ``tm`` the best TM among them."""
-    out: dict[str, float] = {}
-    for metric in (*catalog.metric_keys(), "tm"):
-        vals = [float(f[metric]) for f in floors.values() if metric in f]
-        if vals:
-            higher = metric != "tm" and catalog.higher_is_better(metric)
-            out[metric] = max(vals) if higher else min(vals)
-    return out
-
-
-def margins(means: Mapping[str, float], floor: Mapping[str, float]) -> dict[str, float]:
-    """A model's test-set margin over the floor per metric it has, positive = better than the
-    floor: ``floor - model`` for MAE_DE and TM, ``model - floor`` for the IoUs."""
-    out: dict[str, float] = {}
-    for metric, f in floor.items():
-        if metric in means:
-            higher = metric != "tm" and catalog.higher_is_better(metric)
-            out[metric] = float(means[metric]) - f if higher else f - float(means[metric])
-    return out

@@ -22,7 +22,9 @@
 
 TM and MV are implemented once, in :mod:`compact_perception.core.scores` (re-exported here), and
 reached through their catalog entries (``catalog.SCORES[k].of_terms``): evaluation, the reports
-and the claims' statistics all compute a score that way.
+and the claims' statistics all compute a score that way; :func:`scores_from_means` and
+:func:`score_terms` are the catalog's (re-exported here), so the report computes Table II's TM
+and MV without torch.
 
 Metrics the field expects, beside the paper's (not in the paper):
 
@@ -34,7 +36,9 @@ Metrics the field expects, beside the paper's (not in the paper):
   registry :data:`DEPTH_METRICS` (Eigen et al.'s standard set: AbsRel, SqRel, RMSE, RMSE log,
   delta < 1.25, 1.25^2, 1.25^3) on metric depth decoded from the cache's CARLA log encoding, by
   the field's convention (:data:`DEPTH_CONVENTION`: ground truth capped at the evaluated maximum,
-  ``evaluate.depth_max_m``, prediction clamped to the evaluated range, valid pixels only). A new depth metric is one registry entry here:
+  ``evaluate.depth_max_m``, prediction clamped to the evaluated range, valid pixels only). The
+  registry and the convention are :mod:`compact_perception.core.depth_metrics`' (re-exported
+  here), where the report reads them without torch: a new depth metric is one entry there, and
   evaluation's columns and the report's table derive from the registry.
 
 Batch-level functions (:func:`mae`, :func:`iou`, :func:`compute_metrics`) pool all elements of
@@ -43,19 +47,18 @@ for the batch-1 test evaluation of Table II (mean +- variance over test frames).
 """
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
-from typing import Any, Callable, Collection, Literal, Mapping, Optional, Union
+from typing import Any, Callable, Collection, Mapping, Optional, Union
 
 import numpy as np
 import torch
 from torch import Tensor
 
 from .core import catalog
+from .core.catalog import ARGMAX_TASKS, CLASS_MAP_TASKS, score_terms, scores_from_means
 from .core.scores import metric_variance, total_metric
-from .core.depth import DEPTH_FAR_M, DEPTH_LOG_K
+from .core.depth import DEPTH_FAR_M, DEPTH_LOG_K, DEPTH_NEAR_M
+from .core.depth_metrics import DEPTH_CONVENTION, DEPTH_METRICS, DepthMetric
 from .losses import as_views
-from .core.registry import Registry
 
 __all__ = [
     "mae",
@@ -115,11 +118,6 @@ def _iou_from_counts(inter: Tensor, union: Tensor) -> Tensor:
     return torch.where(union > 0, inter / safe, torch.ones_like(inter))
 
 
-#: The class-map tasks (one class per pixel or cell, one-hot): their unlabelled pixels are left
-#: out of eq. (5) (:func:`labelled_only`) and they are scored by the arg-max rule as well.
-CLASS_MAP_TASKS: tuple[str, ...] = ("ss", "ls")
-
-
 def labelled_only(pred: Tensor, target: Tensor) -> Tensor:
     """``pred`` with 0 at every pixel whose one-hot ``target`` vector is all zero (no label), so
     eq. (5) neither rewards nor charges a prediction there; same shape as ``pred``."""
@@ -160,24 +158,6 @@ def iou(pred: Tensor, target: Tensor, threshold: float = 0.5) -> Tensor:
 MV_DEFINITION = "population variance of the four test-set mean terms (paper eq. 7)"
 #: The per-frame scores that enter TM / MV (eq. 6, 7), in this order.
 SCORE_TERMS: tuple[str, ...] = catalog.metric_keys()
-
-
-def score_terms(scores: Mapping[str, Any]) -> Optional[tuple[Any, ...]]:
-    """The four terms of TM / MV (eq. 6, 7) from ``scores``, in :data:`SCORE_TERMS` order (the
-    arguments of :func:`total_metric` and :func:`metric_variance`); None if any is missing."""
-    if not all(k in scores for k in SCORE_TERMS):
-        return None
-    return tuple(scores[k] for k in SCORE_TERMS)
-
-
-def scores_from_means(means: Mapping[str, float]) -> dict[str, float]:
-    """TM (eq. 6) and MV (eq. 7) from the four **test-set means** ``mae_de``, ``iou_ss``,
-    ``iou_ls``, ``iou_bevp`` (Table II's definition); empty if any of the four is missing."""
-    terms = score_terms(means)
-    if terms is None:
-        return {}
-    vals = [float(v) for v in terms]
-    return {k: float(catalog.SCORES[k].of_terms(*vals)) for k in catalog.SCORES.keys()}
 
 
 def total_metric_partial(scores: Mapping[str, float]) -> float:
@@ -257,10 +237,6 @@ def iou_argmax_per_sample(pred: Tensor, target: Tensor) -> Tensor:
     return iou_per_sample(labelled_only(argmax_one_hot(as_views(pred.detach()).to(g.dtype)), g), g)
 
 
-#: The task heads scored by the arg-max rule beside eq. (5): the class maps.
-ARGMAX_TASKS: tuple[str, ...] = CLASS_MAP_TASKS
-
-
 def compute_metrics_per_sample(outputs: Mapping[str, Tensor], targets: Mapping[str, Tensor], *,
                                argmax_tasks: Collection[str]) -> dict[str, Tensor]:
     """As :func:`compute_metrics` but every value is a (B,) float64 tensor (one per frame).
@@ -336,14 +312,9 @@ def mean_iou(ious: Any) -> float:
 
 
 #: The cache's depth is CARLA's logarithmic depth in [0, 1] (world/camera.py ``encode_depth``,
-#: nuscenes/projection.py ``carla_log_depth``), whose constants :mod:`.core.depth` defines.
-#: The nearest depth the encoding holds (x = 0): 1000 m * exp(-5.70378) = 3.33 m.
-DEPTH_NEAR_M = DEPTH_FAR_M * math.exp(-DEPTH_LOG_K)
-#: Where the depth-evaluation convention comes from (metrics.json and the report's notes cite it).
-DEPTH_CONVENTION = (
-    "Eigen et al. (NIPS 2014) as KITTI depth benchmarks since apply it: ground truth capped at the evaluated "
-    "maximum (pixels beyond it left out), prediction clamped to the evaluated range, valid pixels only, each "
-    "error per frame then averaged over frames")
+#: nuscenes/projection.py ``carla_log_depth``), whose constants :mod:`.core.depth` defines (with
+#: ``DEPTH_NEAR_M``, the nearest depth it holds); the depth metrics and their convention are
+#: :mod:`.core.depth_metrics`' (the report reads them there, without torch).
 
 
 def decode_log_depth(x: Tensor) -> Tensor:
@@ -361,44 +332,6 @@ def depth_valid_mask(target: Tensor, max_m: float = DEPTH_FAR_M) -> Tensor:
     if max_m < DEPTH_FAR_M:
         ok = ok & (decode_log_depth(target) <= max_m)
     return ok
-
-
-@dataclass(frozen=True)
-class DepthMetric:
-    """A metric-depth error beyond the paper: per frame, ``finish(mean over the valid pixels of
-    per_pixel(d, d*))``, with d the decoded, range-clamped prediction and d* the decoded ground
-    truth (m)."""
-
-    label: str                                   # report label: "RMSE (m)"
-    definition: str                              # how it is computed, in words (metrics.json)
-    direction: Literal["lower", "higher"]
-    decimals: int                                # digits in the report's table
-    per_pixel: Callable[[Tensor, Tensor], Tensor]
-    finish: Callable[[Tensor], Tensor] = lambda x: x
-
-
-def _delta(power: int) -> Callable[[Tensor, Tensor], Tensor]:
-    return lambda d, g: (torch.maximum(d / g, g / d) < 1.25 ** power).double()
-
-
-#: depth metric id (the metrics.json key) -> its definition; evaluation and the report iterate it
-#: (the standard set of Eigen et al. 2014: AbsRel, SqRel, RMSE, RMSE log and the three delta accuracies)
-DEPTH_METRICS: Registry[DepthMetric] = Registry("depth metric", ordered=True)
-DEPTH_METRICS.register("abs_rel")(DepthMetric(
-    "AbsRel", "AbsRel = mean |d - d*| / d*", "lower", 3, lambda d, g: (d - g).abs() / g))
-DEPTH_METRICS.register("sq_rel")(DepthMetric(
-    "SqRel (m)", "SqRel = mean (d - d*)^2 / d* (m)", "lower", 3, lambda d, g: (d - g) ** 2 / g))
-DEPTH_METRICS.register("rmse_m")(DepthMetric(
-    "RMSE (m)", "RMSE = sqrt(mean (d - d*)^2) (m)", "lower", 2, lambda d, g: (d - g) ** 2, torch.sqrt))
-DEPTH_METRICS.register("rmse_log")(DepthMetric(
-    "RMSE log", "RMSE log = sqrt(mean (ln d - ln d*)^2)", "lower", 3,
-    lambda d, g: (torch.log(d) - torch.log(g)) ** 2, torch.sqrt))
-DEPTH_METRICS.register("delta_1.25")(DepthMetric(
-    "δ<1.25", "delta_1.25 = share with max(d/d*, d*/d) < 1.25", "higher", 3, _delta(1)))
-DEPTH_METRICS.register("delta_1.25^2")(DepthMetric(
-    "δ<1.25²", "delta_1.25^2 = share with max(d/d*, d*/d) < 1.25^2", "higher", 3, _delta(2)))
-DEPTH_METRICS.register("delta_1.25^3")(DepthMetric(
-    "δ<1.25³", "delta_1.25^3 = share with max(d/d*, d*/d) < 1.25^3", "higher", 3, _delta(3)))
 
 
 @torch.no_grad()

@@ -8,10 +8,12 @@ reads them without importing torch, and a class registered under an id missing h
 This module imports nothing heavy (no torch), so the config and every stage can read it.
 
 - a **task** (paper section III-B): its test metric (``metric``, a per-frame score key), the
-  labels of task and metric, and whether lower or higher is better;
+  labels of task and metric, and whether lower or higher is better; which tasks are class maps
+  (:data:`CLASS_MAP_TASKS`, also scored by the arg-max rule: :data:`ARGMAX_TASKS`);
 - a **score** over the four task metrics (paper eq. 6-7: TM, MV): Table II's columns are the task
   metrics, then the scores (:func:`table2_columns`); each entry carries its formula
-  (``of_terms``, :mod:`.scores`), which evaluation, the report and the statistics call;
+  (``of_terms``, :mod:`.scores`), which evaluation, the report and the statistics call (the four
+  test-set means' scores: :func:`scores_from_means`);
 - a **dataset**: its report label and whether the embedded world simulates it;
 - a **model**: its report label, its group (``compact``: the paper's network, trained per
   ``seeds``; ``baseline``: section V-D, per ``baseline_seeds``), the LiDAR channels it reads, its
@@ -30,7 +32,7 @@ its group here decides whether ``datasets.<ds>.training.seeds`` or ``baseline_se
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Callable, Literal
+from typing import Any, Callable, Literal, Mapping, Optional
 
 from .registry import Registry
 from .scores import metric_variance, total_metric
@@ -41,6 +43,7 @@ __all__ = [
     "metric_of", "metric_keys", "higher_is_better", "model_label", "table_model_ids", "combination_source",
     "SOURCE_LABEL", "source_label", "STOP_PLATEAU", "STOP_CAP",
     "ScoreInfo", "SCORES", "table2_columns", "per_frame_scores", "per_frame_columns", "column_label", "lower_is_better",
+    "score_terms", "scores_from_means", "CLASS_MAP_TASKS", "ARGMAX_TASKS",
     "WeightingInfo", "WEIGHTING_METHODS", "weighting_info",
 ]
 
@@ -92,6 +95,13 @@ TASKS.register("de")(TaskInfo("DE", "mae_de", "MAE_DE", "lower"))
 TASKS.register("ss")(TaskInfo("SS", "iou_ss", "IoU_SS", "higher"))
 TASKS.register("ls")(TaskInfo("LS", "iou_ls", "IoU_LS", "higher"))
 TASKS.register("bevp")(TaskInfo("BEVP", "iou_bevp", "IoU_BEVP", "higher"))
+
+#: The class-map tasks (one class per pixel or cell, one-hot): evaluation leaves their unlabelled
+#: pixels out of eq. (5) (``metrics.labelled_only``) ...
+CLASS_MAP_TASKS: tuple[str, ...] = ("ss", "ls")
+#: ... and scores them by the arg-max rule as well, beside eq. (5) (``metrics.iou_argmax_per_sample``;
+#: the report's extra-metrics table shows those scores).
+ARGMAX_TASKS: tuple[str, ...] = CLASS_MAP_TASKS
 
 SCORES: Registry[ScoreInfo] = Registry("score", ordered=True)
 SCORES.register("tm")(ScoreInfo("TM", "lower", "6", per_frame=True, of_terms=total_metric))
@@ -188,6 +198,25 @@ def higher_is_better(metric: str) -> bool:
 def table2_columns() -> tuple[str, ...]:
     """Table II's columns: the task metrics in task order, then the scores over them (TM, MV)."""
     return metric_keys() + tuple(SCORES.keys())
+
+
+def score_terms(scores: Mapping[str, Any]) -> Optional[tuple[Any, ...]]:
+    """The four terms of TM / MV (eq. 6, 7) from ``scores``, in :func:`metric_keys` order (the
+    arguments of every score's ``of_terms``); None if any is missing."""
+    keys = metric_keys()
+    if not all(k in scores for k in keys):
+        return None
+    return tuple(scores[k] for k in keys)
+
+
+def scores_from_means(means: Mapping[str, float]) -> dict[str, float]:
+    """TM (eq. 6) and MV (eq. 7) from the four **test-set means** ``mae_de``, ``iou_ss``,
+    ``iou_ls``, ``iou_bevp`` (Table II's definition); empty if any of the four is missing."""
+    terms = score_terms(means)
+    if terms is None:
+        return {}
+    vals = [float(v) for v in terms]
+    return {k: float(SCORES[k].of_terms(*vals)) for k in SCORES.keys()}
 
 
 def per_frame_scores() -> tuple[str, ...]:

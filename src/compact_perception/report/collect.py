@@ -9,8 +9,8 @@ Inputs (ARCHITECTURE.md / SPEC 2), per run (one training seed ``k`` of a (datase
   optional ``class_iou``, ``depth`` and ``argmax`` blocks (metrics beyond the paper's; ``argmax``:
   the class maps scored by the arg-max rule) go to :attr:`ModelResult.extra`;
 - ``results/<ds>/<trivial id>/metrics.json`` and ``data/eval/<ds>/<trivial id>/per_frame.csv``:
-  the trivial predictors of the floor (:data:`compact_perception.floor.TRIVIAL`, no seed;
-  :func:`load_floor_results`, :func:`load_floor_frames`);
+  the trivial predictors of the floor (:data:`compact_perception.core.floor_rule.FLOOR_PREDICTORS`,
+  no seed; :func:`load_floor_results`, :func:`load_floor_frames`);
 - ``data/eval/<ds>/<model>/seed<k>/per_frame.csv``: one row per test frame (``frame_id`` and
   the scores), read by :func:`load_frames` for the intervals (:mod:`compact_perception.stats`); ``inputs.npz`` and
   ``predictions.npz`` beside it (the qualitative figures);
@@ -35,7 +35,7 @@ scene, :func:`compact_perception.core.cache.frame_cluster`): the input of
 :func:`compact_perception.stats.interval`.
 
 Over seeds (:func:`aggregate_runs`): each metric's run-level value (a run's test-set mean; TM and
-MV of the run's four test-set means, eq. 6-7 via :func:`compact_perception.metrics.scores_from_means`)
+MV of the run's four test-set means, eq. 6-7 via :func:`compact_perception.core.catalog.scores_from_means`)
 is averaged over the runs, with the sample standard deviation (n - 1) over them; the per-frame
 variance the paper prints is averaged over the runs.
 """
@@ -55,7 +55,6 @@ import pandas as pd
 from ..core import catalog
 from ..core.cache import frame_cluster
 from ..core.layout import RunPaths, floor_paths, run_paths
-from ..metrics import scores_from_means
 from ..stats import Comparison, Group, make_comparison
 from .schema import COMBINATION, COMBINATION_SOURCE, FLOOR_IDS, PER_FRAME_COLUMNS, TABLE2_COLUMNS, TASK_COLUMNS
 
@@ -198,7 +197,7 @@ def with_derived(result: ModelResult, where: str = "") -> ModelResult:
     one implementation); a stored value that differs (an older file holding the mean of a
     per-frame MV) is logged and replaced. Models without the four tasks keep what they have."""
     means = {c: cell.mean for c, cell in result.scores.items() if c in TASK_COLUMNS}
-    derived = scores_from_means(means)
+    derived = catalog.scores_from_means(means)
     if not derived:
         return result
     scores = dict(result.scores)

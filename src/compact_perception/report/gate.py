@@ -2,11 +2,11 @@
 floor on a metric?
 
 The floor of a dataset on a task metric is the better of its trivial predictors' test-set means
-(:func:`compact_perception.floor.floor_of`: ``floor_pixel`` and ``floor_global``, fitted on the
-train split, scored on the test split with the same metric code as every model); on TM the better
-of their TMs. A row's **margin** on a metric is its value's distance from that floor, positive
-when it is better (:func:`compact_perception.floor.margins`): the mean over its training seeds of
-the run-level value against the predictor that gives the floor, with the interval of
+(:func:`compact_perception.core.floor_rule.floor_of`: ``floor_pixel`` and ``floor_global``, fitted
+on the train split, scored on the test split with the same metric code as every model); on TM the
+better of their TMs. A row's **margin** on a metric is its value's distance from that floor,
+positive when it is better (:func:`compact_perception.core.floor_rule.margins`): the mean over its
+training seeds of the run-level value against the predictor that gives the floor, with the interval of
 :func:`compact_perception.stats.interval` (the row's runs keyed by seed, the predictor a ``fixed``
 group: one deterministic run; the frames' episodes or scenes as clusters).
 
@@ -32,7 +32,7 @@ from typing import Optional, Sequence
 import numpy as np
 import pandas as pd
 
-from ..floor import floor_of
+from ..core.floor_rule import floor_of
 from ..stats import MIN_SEEDS, IntervalResult, interval, stat_mean
 from .collect import ModelResult, ReportInputError, frame_comparison, load_floor_frames, load_floor_results
 from .schema import FLOOR_IDS, METRIC_TASK, ROW_LABEL, TASK_COLUMNS, beats, column_stat, stat_columns
@@ -111,7 +111,7 @@ class DatasetFloor:
         return {t: {k: c.mean for k, c in r.scores.items() if k != "mv"} for t, r in self.results.items()}
 
     def value(self) -> dict[str, float]:
-        """Per task metric and TM, the floor (:func:`compact_perception.floor.floor_of`)."""
+        """Per task metric and TM, the floor (:func:`compact_perception.core.floor_rule.floor_of`)."""
         return floor_of(self.means())
 
     def source(self, metric: str) -> Optional[str]:

@@ -5,7 +5,7 @@ label of its own.
 - **rows**: every model in its ``table_order`` (the paper's order, baselines first), with the
   combination of baselines (section V-D, SPEC 6) right after the last model that gives it a
   task (:attr:`~compact_perception.core.catalog.ModelInfo.combination`); the trivial predictors
-  of the floor (SPEC 8, :data:`compact_perception.floor.TRIVIAL`) with their labels;
+  of the floor (SPEC 8, :data:`compact_perception.core.floor_rule.FLOOR_PREDICTORS`) with their labels;
 - **columns** of Table II: the task metrics in task order, then TM and MV (eq. 6-7), with their
   labels, directions, the statistic their interval uses (:mod:`compact_perception.stats`) and the
   contrast "row a beats row b" (:func:`beats`);
@@ -20,7 +20,7 @@ from typing import Callable
 import numpy as np
 
 from ..core import catalog
-from ..floor import TRIVIAL
+from ..core.floor_rule import FLOOR_PREDICTORS
 from ..stats import STATISTICS, stat_mean
 
 __all__ = [
@@ -57,8 +57,8 @@ ROW_ORDER: tuple[str, ...] = row_ids()
 ROW_LABEL: dict[str, str] = {**{m: catalog.model_label(m) for m in catalog.model_ids()}, COMBINATION: "Combination"}
 DATASET_LABEL: dict[str, str] = {d: catalog.DATASETS[d].label for d in catalog.dataset_ids()}
 #: The trivial predictors of the floor, in the order of their rows (first in every dataset's block).
-FLOOR_IDS: tuple[str, ...] = tuple(TRIVIAL.keys())
-FLOOR_LABEL: dict[str, str] = {t: TRIVIAL[t].label for t in FLOOR_IDS}
+FLOOR_IDS: tuple[str, ...] = tuple(FLOOR_PREDICTORS.keys())
+FLOOR_LABEL: dict[str, str] = {t: FLOOR_PREDICTORS[t] for t in FLOOR_IDS}
 
 # ----------------------------------------------------------------------------- columns
 TASK_COLUMNS: tuple[str, ...] = catalog.metric_keys()

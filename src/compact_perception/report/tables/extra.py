@@ -13,7 +13,8 @@ from typing import Any, Callable, Optional
 import numpy as np
 
 from ...core import catalog
-from ...metrics import ARGMAX_TASKS, DEPTH_CONVENTION, DEPTH_METRICS, DEPTH_NEAR_M
+from ...core.depth import DEPTH_NEAR_M
+from ...core.depth_metrics import DEPTH_CONVENTION, DEPTH_METRICS
 from ..collect import Cell, ModelResult, ReportInputError, aggregate_cells
 from ..gate import ABOVE, BELOW, Gate, margin_on_column
 from ..schema import DATASET_LABEL, FLOOR_LABEL, ROW_LABEL, ROW_ORDER, TASK_COLUMNS
@@ -24,7 +25,7 @@ from .formats import (BELOW_FLOOR_MARK, NOT_APPLICABLE, NOT_AVAILABLE, UNSHOWN_M
 EXTRA_TASKS: tuple[str, ...] = tuple(t for t in catalog.task_ids() if catalog.metric_of(t).startswith("iou_"))
 EXTRA_DEPTH: tuple[str, ...] = tuple(DEPTH_METRICS.keys())
 #: The class maps scored by the arg-max rule too (``argmax`` block: metric -> mean, var).
-EXTRA_ARGMAX: tuple[str, ...] = tuple(catalog.metric_of(t) for t in ARGMAX_TASKS)
+EXTRA_ARGMAX: tuple[str, ...] = tuple(catalog.metric_of(t) for t in catalog.ARGMAX_TASKS)
 EXTRA_MD: dict[str, str] = {**{t: f"mIoU_{catalog.TASKS[t].label}" for t in EXTRA_TASKS},
                             **{k: DEPTH_METRICS[k].label for k in EXTRA_DEPTH},
                             **{m: f"{catalog.column_label(m)} (arg-max)" for m in EXTRA_ARGMAX}}

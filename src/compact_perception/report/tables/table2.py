@@ -14,7 +14,7 @@ Every model is trained once per training seed (params ``seeds``; the baselines
 ``baseline_seeds``), so each metric is shown twice, each labelled:
 
 - ``mean ± sd``: the mean over the seeds of the run-level value (a run's test-set mean; TM and
-  MV of the run's four test-set means, eq. 6-7 via :func:`compact_perception.metrics.scores_from_means`)
+  MV of the run's four test-set means, eq. 6-7 via :func:`compact_perception.core.catalog.scores_from_means`)
   ± the sample standard deviation (n - 1) over the seeds; with one seed the mean and ``(n=1)``;
   a trivial predictor is deterministic: its one value;
 - ``var (frames)``: the paper's ``±`` column, the variance over test frames of the per-frame
@@ -49,7 +49,7 @@ from typing import Any, Mapping, Optional, Sequence
 
 import pandas as pd
 
-from ...metrics import scores_from_means
+from ...core.catalog import scores_from_means
 from ...stats import REPRODUCED, IntervalResult, MIN_SEEDS, interval, verdict
 from ..collect import Cell, ModelResult, ReportInputError, aggregate_cells, frame_comparison, pair_by_seed
 from ..gate import ABOVE, BELOW, NO_FLOOR, UNSHOWN, DatasetFloor, Gate
