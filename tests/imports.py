@@ -48,7 +48,9 @@ def _module_name(root: Path, path: Path) -> str:
     return ".".join(parts)
 
 
-def _imports(root: Path, path: Path) -> set[str]:
+def module_imports(root: Path, path: Path) -> set[str]:
+    """Every module importing the file at ``path`` runs (lazy imports included; a third-party
+    module by its name too), each with the packages above it (``a.b.c`` runs ``a`` and ``a.b``)."""
     name = _module_name(root, path)
     package = name if path.name == "__init__.py" else name.rpartition(".")[0]
     found: set[str] = set()
@@ -75,7 +77,7 @@ def import_closure(root: Path, entry: Path) -> set[Path]:
         if path in seen:
             continue
         seen.add(path)
-        for mod in _imports(root, path):
+        for mod in module_imports(root, path):
             f = module_file(root, mod)
             if f is not None and f not in seen:
                 todo.append(f)

@@ -1,5 +1,6 @@
 """dvc.yaml records every input of a result: each stage depends on every project module its
-entry module can import (statically, lazy imports included) and on nothing that is missing.
+entry module can import (statically, lazy imports included), on no code it cannot import (so
+editing a loss reruns no report), and on nothing that is missing.
 
 The params side (every key a stage reads is listed under its ``params:``) is checked by the
 end-to-end test, which runs the real stages with the params audit on.
@@ -47,6 +48,26 @@ def test_stage_depends_on_every_module_it_imports(name):
     deps = _code_deps(stage)
     missing = sorted(p.relative_to(ROOT).as_posix() for p in import_closure(ROOT, entry) if not _covered(p, deps))
     assert not missing, f"stage {name} imports these but does not depend on them: {missing}"
+
+
+@pytest.mark.parametrize("name", sorted(_stages()))
+def test_stage_depends_on_no_code_it_does_not_import(name):
+    """Every Python file or folder of code a stage depends on holds a module its entry can import:
+    a module the stage does not run would rerun it for nothing (data files, such as the paper's
+    numbers, are inputs of their own)."""
+    stage = _stages()[name]
+    module = re.search(r"-m (pipeline\.\w+)", stage["cmd"]).group(1)
+    closure = import_closure(ROOT, ROOT / (module.replace(".", "/") + ".py"))
+    code = [d for d in _code_deps(stage) if d.endswith(".py") or (ROOT / d).is_dir()]
+    unused = [d for d in code if not any(_covered(p, [d]) for p in closure)]
+    assert not unused, f"stage {name} depends on code it does not import: {unused}"
+
+
+def test_the_report_reruns_for_no_loss_metric_or_floor():
+    """The report reads what evaluation wrote: the modules that compute it are no dependency."""
+    deps = _code_deps(_stages()["report"])
+    for module in ("losses.py", "metrics.py", "floor.py"):
+        assert f"src/compact_perception/{module}" not in deps
 
 
 @pytest.mark.parametrize("name", sorted(_stages()))

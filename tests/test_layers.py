@@ -21,15 +21,25 @@ below it):
 4. ``pipeline`` -- the stage entry points (outside ``src``; may import everything).
 
 The package's own ``__init__`` imports nothing of the project, so it is layer 0.
+
+The report needs no torch: nothing the report stage can import (``pipeline/report.py``, every
+module of ``report/`` and ``stats/``, and everything they import, lazily too) imports torch or
+the modules that compute a run's numbers (:data:`RUN_SIDE`); the facts it needs of them (score
+formulas, metric and floor labels, the depth convention) are ``core``'s. Checked on the import
+graph (naming the chain) and by importing the report in a fresh interpreter.
 """
 from __future__ import annotations
 
 import ast
+import subprocess
+import sys
+from collections import deque
 from pathlib import Path
+from typing import Optional
 
 import pytest
 
-from imports import import_targets
+from imports import import_targets, module_file, module_imports
 
 ROOT = Path(__file__).resolve().parents[1]
 PKG = ROOT / "src" / "compact_perception"
@@ -134,3 +144,127 @@ def test_checker_resolves_relative_and_lazy_imports(tmp_path):
 ])
 def test_layer_order(importer, imported, upward):
     assert (_layer(imported) > _layer(importer)) is upward
+
+
+# ----------------------------------------------------------------------------- the report needs no torch
+#: The modules that compute a run's numbers (evaluation's metrics and floor, training's losses):
+#: the report reads what they wrote, never them, so editing one reruns nothing of the report.
+RUN_SIDE: tuple[str, ...] = (f"{TOP}.metrics", f"{TOP}.losses", f"{TOP}.floor")
+#: What no module of the report stage may import, directly or through others, lazily too.
+NOT_IN_REPORT: tuple[str, ...] = ("torch", *RUN_SIDE)
+
+
+#: The modules of every stage's start-up (``pipeline/__init__``, ``pipeline/_common``) whose
+#: functions for the torch stages import torch: the numeric pins (``set_threads``,
+#: ``set_determinism``) and the device check (``device_problem``, a stage that runs on
+#: ``train.device``). They import torch inside those functions only
+#: (:func:`test_the_start_up_imports_torch_only_in_the_torch_stages_helpers`), and the report stage,
+#: run whole, loads no torch (:func:`test_the_report_stage_runs_without_torch`).
+TORCH_ONLY_WHEN_CALLED: frozenset[str] = frozenset({f"src/{TOP}/core/determinism.py", f"src/{TOP}/core/machine.py"})
+
+
+def _report_entries() -> list[Path]:
+    """Every module the report stage runs: its entry point and each module of ``report/`` and ``stats/``."""
+    return [ROOT / "pipeline" / "report.py", *sorted((PKG / "report").rglob("*.py")),
+            *sorted((PKG / "stats").rglob("*.py"))]
+
+
+def _forbidden(name: str) -> bool:
+    return any(name == bad or name.startswith(bad + ".") for bad in NOT_IN_REPORT)
+
+
+def _chain_to_forbidden(entry: Path) -> Optional[list[str]]:
+    """The import chain (files, then the module) from ``entry`` to a module of :data:`NOT_IN_REPORT`,
+    breadth first (the shortest); ``None`` when there is none."""
+    todo: deque[tuple[Path, list[str]]] = deque([(entry, [entry.relative_to(ROOT).as_posix()])])
+    seen = {entry}
+    while todo:
+        path, chain = todo.popleft()
+        torch_when_called = path.relative_to(ROOT).as_posix() in TORCH_ONLY_WHEN_CALLED
+        for name in sorted(module_imports(ROOT, path)):
+            if _forbidden(name) and not (torch_when_called and name.split(".")[0] == "torch"):
+                return chain + [name]
+            found = module_file(ROOT, name)
+            if found is not None and found not in seen:
+                seen.add(found)
+                todo.append((found, chain + [found.relative_to(ROOT).as_posix()]))
+    return None
+
+
+@pytest.mark.parametrize("entry", _report_entries(), ids=lambda p: p.relative_to(ROOT).as_posix())
+def test_no_report_module_reaches_torch_or_the_run_side(entry: Path):
+    chain = _chain_to_forbidden(entry)
+    assert chain is None, "the report must not import torch or " + ", ".join(RUN_SIDE) + ": " + " -> ".join(chain)
+
+
+def test_the_checker_finds_a_lazy_import_two_modules_down(tmp_path, monkeypatch):
+    """The chain search itself: a report module importing a core module that lazily imports the
+    metrics module is caught, and the chain names both files."""
+    pkg = tmp_path / "src" / TOP
+    for sub in ("report", "core"):
+        (pkg / sub).mkdir(parents=True)
+        (pkg / sub / "__init__.py").write_text("")
+    (pkg / "__init__.py").write_text("")
+    (pkg / "metrics.py").write_text("import torch\n")
+    (pkg / "core" / "facts.py").write_text("def f():\n    from ..metrics import mae\n")
+    (pkg / "report" / "table.py").write_text("from ..core import facts\n")
+    (pkg / "report" / "clean.py").write_text("from ..core import catalog\nimport numpy\n")
+    monkeypatch.setattr(sys.modules[__name__], "ROOT", tmp_path)
+    assert _chain_to_forbidden(pkg / "report" / "table.py") == [
+        f"src/{TOP}/report/table.py", f"src/{TOP}/core/facts.py", f"{TOP}.metrics"]
+    assert _chain_to_forbidden(pkg / "report" / "clean.py") is None
+
+
+def test_the_start_up_imports_torch_only_in_the_torch_stages_helpers():
+    """The exemption holds: a module of :data:`TORCH_ONLY_WHEN_CALLED` imports torch inside its
+    functions only, never when it is imported (``if TYPE_CHECKING:`` aside)."""
+    def on_import(nodes: list[ast.stmt]) -> set[str]:
+        names: set[str] = set()
+        for node in nodes:
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                continue
+            if isinstance(node, ast.If) and isinstance(node.test, ast.Name) and node.test.id == "TYPE_CHECKING":
+                names |= on_import(node.orelse)
+                continue
+            names.update(import_targets(node, f"{TOP}.core"))
+            names |= on_import([c for c in ast.iter_child_nodes(node) if isinstance(c, ast.stmt)])
+        return names
+
+    for rel in sorted(TORCH_ONLY_WHEN_CALLED):
+        tree = ast.parse((ROOT / rel).read_text())
+        assert not any(n.split(".")[0] == "torch" for n in on_import(tree.body)), f"{rel} imports torch on import"
+
+
+def _in_fresh_interpreter(code: str) -> list[str]:
+    """Run ``code`` in a fresh interpreter at the repository root; the modules of
+    :data:`NOT_IN_REPORT` it left loaded."""
+    code += f"\nimport sys\nprint(sorted(m for m in sys.modules if any(m == b or m.startswith(b + '.') for b in {NOT_IN_REPORT!r})))"
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=300)
+    assert done.returncode == 0, done.stderr
+    return ast.literal_eval(done.stdout.strip().splitlines()[-1])
+
+
+def test_importing_the_report_loads_no_torch():
+    """In a fresh interpreter, every report module and the stage's entry point import without
+    torch (nor a third-party module that pulls it in) and without the run side's modules."""
+    modules = [".".join(p.relative_to(PKG.parent if p.is_relative_to(PKG) else ROOT).with_suffix("").parts)
+               for p in _report_entries()]
+    modules = [m.removesuffix(".__init__") for m in modules]
+    code = f"import importlib\nfor m in {modules!r}:\n    importlib.import_module(m)"
+    assert _in_fresh_interpreter(code) == []
+
+
+def test_the_report_stage_runs_without_torch(tmp_path):
+    """The stage itself, lazy imports in the functions it calls included: ``python -m
+    pipeline.report`` with the repository's params (its start-up, the plateau record, the whole
+    report: tables, claims, figures, plots) over a tree of every selected dataset's runs, in a
+    fresh interpreter, leaves no torch loaded."""
+    from report_fixture import build_tree
+
+    build_tree(tmp_path / "tree", ("A", "B", "C", "nuscenes"), n_frames=20, seeds=(0, 1, 2, 3), baseline_seeds=(0,),
+               predictions=True, efficiency=True)
+    argv = ["pipeline.report", "--root", str(tmp_path / "tree"), "--out", str(tmp_path / "reports")]
+    code = f"import runpy, sys\nsys.argv = {argv!r}\nrunpy.run_module('pipeline.report', run_name='__main__')"
+    assert _in_fresh_interpreter(code) == []
+    for name in ("index.md", "tables/table2.md", "tables/claims.md", "figures/report/qualitative_A.png"):
+        assert (tmp_path / "reports" / name).is_file(), name

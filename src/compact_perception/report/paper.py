@@ -4,7 +4,7 @@ The YAML is package data (``compact_perception/paper_numbers.yaml``); this modul
 into small typed records. A Table II task cell is a :class:`PaperCell` (mean and the variance
 over test frames; the paper prints ``<0.001`` for variances under its precision, kept as
 ``var_below=True``). Anything the paper leaves blank is ``None``. TM and MV of the paper's
-rows are recomputed (tests, claims) with :mod:`compact_perception.metrics`, the project's one
+rows are recomputed (tests, claims) with :mod:`compact_perception.core.scores`, the project's one
 implementation of eq. (6)-(7).
 """
 from __future__ import annotations
