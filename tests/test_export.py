@@ -108,7 +108,7 @@ def test_table3_has_onnx_columns() -> None:
             "memory_method": "hooks", "models": {"A": models}}
     tables = build_table3(json.loads(json.dumps(effj)))
     rows = {r.row_id: r for r in tables["A"]}
-    assert rows["compact_15l"].onnx_fps == 200.0 and rows["compact_1l"].onnx_fps is None
+    assert rows["compact_15l"].value("onnx_fps") == 200.0 and rows["compact_1l"].value("onnx_fps") is None
     md = table3_markdown(tables, effj)
     assert "ONNX Runtime FPS (CPU)" in md and "| 200.00 | 5.00 |" in md and "ONNX Runtime 1.x" in md
     header = md.splitlines()[0].count("|")

@@ -69,9 +69,17 @@ def test_paper_numbers_complete_and_self_consistent() -> None:
     assert p.table2["A"]["chen_bev"].cells["iou_bevp"].var_below
     for grp, rows3 in p.table3.items():
         parts = [rows3[b] for b in ("chen_bev", "polarnet", "gradnorm_segnet")]
-        assert sum(r.params * r.copies for r in parts) == rows3["combination"].total_params
-        assert sum(r.size_mb * r.copies for r in parts) == pytest.approx(rows3["combination"].total_size_mb, abs=1e-6)
-    assert p.table3["simulation"]["compact_15l"].params == 2521504 and p.table3_device == "NVIDIA GTX 1080 Ti"
+        assert sum(r.value("params") for r in parts) == rows3["combination"].value("total_params")
+        assert sum(r.value("size_mb") for r in parts) == pytest.approx(rows3["combination"].value("total_size_mb"),
+                                                                       abs=1e-6)
+        # the combination prints only its totals: its own parameters are those
+        assert rows3["combination"].value("params") == rows3["combination"].value("total_params")
+    sim = p.table3["simulation"]
+    assert sim["compact_15l"].value("params") == 2521504 and p.table3_device == "NVIDIA GTX 1080 Ti"
+    # 4xGradNorm: printed per copy (28,239,960 parameters, 226.116 MB), the row's value is the four copies'
+    assert sim["gradnorm_segnet"].copies == 4 and sim["gradnorm_segnet"].value("params") == 4 * 28239960
+    assert sim["gradnorm_segnet"].value("size_mb") == pytest.approx(4 * 226.116)
+    assert sim["combination"].value("peak_memory_mb") == 1987 and sim["gradnorm_segnet"].value("fps") is None
 
 
 # ----------------------------------------------------------------------------- rows and columns
@@ -364,10 +372,46 @@ def test_table3_combination_sums(tmp_path: Path) -> None:
     effj = json.loads((tmp_path / "results/benchmark/efficiency.json").read_text())
     rows = {r.row_id: r for r in build_table3(effj)["A"]}
     comb = rows["combination"]
-    assert comb.params == comb.total_params == 5000 + 6000 + 7000        # gradnorm, polarnet, chen
-    assert comb.latency_ms == pytest.approx(6 + 7 + 8) and comb.fps == pytest.approx(1000 / 21)
-    assert rows["compact_1l"].total_params == rows["compact_1l"].params == 1000
-    assert rows["compact_15l_mgn_authors"].total_params == 4000 and rows["polarnet"].total_params is None
+    assert comb.value("params") == comb.value("total_params") == 5000 + 6000 + 7000        # gradnorm, polarnet, chen
+    assert comb.value("latency_ms") == pytest.approx(6 + 7 + 8) and comb.value("fps") == pytest.approx(1000 / 21)
+    assert rows["compact_1l"].value("total_params") == rows["compact_1l"].value("params") == 1000
+    assert rows["compact_15l_mgn_authors"].value("total_params") == 4000 and rows["polarnet"].value("total_params") is None
+
+
+def test_table3_columns_are_defined_once(tmp_path: Path) -> None:
+    """Table III's columns (schema.TABLE3_COLUMNS) are what the reproduced table prints (Markdown
+    header, LaTeX column spec, CSV columns), what a paper row may print (paper_numbers.yaml's
+    fields, an unknown one refused) and what the comparison and the claims compare."""
+    import yaml
+
+    from compact_perception.report.claims import EFFICIENCY_CLAIMS
+    from compact_perception.report.paper import PaperNumbersError, parse_paper_numbers
+    from compact_perception.report.tables.comparison import TABLE3_COMPARED
+    from compact_perception.report.tables.table3 import table3_csv, table3_latex, table3_markdown
+
+    cols = schema.TABLE3_COLUMNS
+    _tree(tmp_path, ("A",))
+    effj = json.loads((tmp_path / "results/benchmark/efficiency.json").read_text())
+    tables = build_table3(effj)
+    for gpu in (False, True):
+        md = table3_markdown(tables, {**effj, "is_gpu": gpu}).splitlines()
+        assert md[0] == "| " + " | ".join(["Dataset", "Model", *(c.header_on(gpu) for c in cols)]) + " |"
+        assert md[1].count("---:") == sum(c.kind != "text" for c in cols)
+    assert ("GPU memory (MB)" in md[0]) and ("Peak memory, CPU estimate (MB)" not in md[0])
+    spec = "ll" + "".join("l" if c.kind == "text" else "r" for c in cols)
+    assert "\\begin{tabular}{" + spec + "}" in table3_latex(tables, effj)
+    header = table3_csv(tables, effj).splitlines()[0].split(",")
+    assert header[4:4 + len(cols)] == [c.key for c in cols]
+    # the paper's side: each printed field is a column's, and a row printing another is refused
+    data = yaml.safe_load((Path(__file__).resolve().parents[1] / "src/compact_perception/paper_numbers.yaml").read_text())
+    printed = {k for g in data["table3"]["groups"].values() for r in g["rows"].values() for k in r}
+    assert printed - {"label", "copies", "printed_on"} == {c.paper for c in cols if c.paper}
+    data["table3"]["groups"]["simulation"]["rows"]["compact_1l"]["latency_ms"] = 17.5
+    with pytest.raises(PaperNumbersError, match=r"rows.compact_1l: unknown key\(s\) \['latency_ms'\]"):
+        parse_paper_numbers(data)
+    # what is compared: the columns the paper prints, each by its own key
+    assert {c.key for c in TABLE3_COMPARED.values()} | set(EFFICIENCY_CLAIMS.values()) <= {c.key for c in cols if c.paper}
+    assert list(TABLE3_COMPARED) == ["params", "size_mb", "memory_mb", "fps"]
 
 
 def test_figures_write_pngs(tmp_path: Path) -> None:

@@ -411,6 +411,11 @@ def build_claims(root: Path, datasets: Sequence[str], paper: PaperNumbers, *,
     return sorted(rows, key=lambda r: (order[r.claim], ds_order[r.dataset], v_order.get(r.model, -1)))
 
 
+#: The Table III claims: claim -> the column (:data:`~.schema.TABLE3_COLUMNS`) whose totals they compare.
+EFFICIENCY_CLAIMS: dict[str, str] = {"efficiency/params": "total_params", "efficiency/size": "total_size_mb",
+                                     "efficiency/memory": "peak_memory_mb", "efficiency/fps": "fps"}
+
+
 def efficiency_claims(efficiency: Mapping[str, Any], paper: PaperNumbers, model: str = PAPER_MGN, *,
                       table3: Optional[dict[str, list[Table3Row]]] = None) -> list[ClaimRow]:
     """The ``efficiency/*`` rows (Table III, ``table3`` or built from ``efficiency``) per
@@ -423,16 +428,13 @@ def efficiency_claims(efficiency: Mapping[str, Any], paper: PaperNumbers, model:
         mgn, comb = by.get(model), by.get(COMBINATION)
         raw = efficiency["models"][ds]
         pm, pc = paper.table3_row(ds, PAPER_MGN), paper.table3_row(ds, COMBINATION)
-        for claim, field, paper_field in (("efficiency/params", "total_params", "total_params"),
-                                          ("efficiency/size", "total_size_mb", "total_size_mb"),
-                                          ("efficiency/memory", "peak_memory_mb", "gpu_memory_mb"),
-                                          ("efficiency/fps", "fps", "fps")):
+        for claim, field in EFFICIENCY_CLAIMS.items():
             if mgn is None or comb is None or not (mgn.available and comb.available):
                 rows.append(_no_data(ds, claim, st[claim], None, "no benchmark of 15L+MGN or of all three baselines",
                                      model=model, above=FLOOR_NA))
                 continue
             sign = 1.0 if field == "fps" else -1.0
-            measured = sign * (float(getattr(mgn, field)) - float(getattr(comb, field)))
+            measured = sign * (float(mgn.value(field)) - float(comb.value(field)))
             lo = hi = measured
             spread = all(k in raw[m] for m in (model, *COMBINATION_MODELS)
                          for k in ("latency_ms_min", "latency_ms_p90"))
@@ -443,9 +445,9 @@ def efficiency_claims(efficiency: Mapping[str, Any], paper: PaperNumbers, model:
                 comb_p90 = sum(float(raw[b]["latency_ms_p90"]) for b in COMBINATION_MODELS)
                 lo = 1e3 / float(raw[model]["latency_ms_p90"]) - 1e3 / comb_min
                 hi = 1e3 / float(raw[model]["latency_ms_min"]) - 1e3 / comb_p90
-            pa, pb = (getattr(pm, paper_field, None) if pm else None), (getattr(pc, paper_field, None) if pc else None)
+            pa, pb = (pm.value(field) if pm else None), (pc.value(field) if pc else None)
             pdiff = None if pa is None or pb is None else round(sign * (float(pa) - float(pb)), 6)
-            device = mgn.device or "the benchmark's device"
+            device = mgn.value("device") or "the benchmark's device"
             rows.append(ClaimRow(ds, claim, st[claim], pdiff, measured, None if math.isnan(lo) else lo,
                                  None if math.isnan(hi) else hi, None, None, verdict(lo, hi),
                                  note=f"measured on {device}" + ("; paper: GTX 1080 Ti" if claim in (

@@ -19,7 +19,7 @@ from typing import Any, Optional
 import yaml
 
 from ..core import catalog
-from .schema import ROW_ORDER, TABLE2_COLUMNS, TASK_COLUMNS
+from .schema import ROW_ORDER, TABLE2_COLUMNS, TABLE3, TABLE3_COLUMNS, TASK_COLUMNS
 
 log = logging.getLogger(__name__)
 
@@ -71,18 +71,26 @@ class PrintedTable2Row:
 
 @dataclass(frozen=True)
 class PrintedTable3Row:
-    """One printed row of Table III (sizes and memory in MB)."""
+    """One printed row of Table III (sizes and memory in MB): ``printed``, what it prints, by the
+    key of the column of :data:`~.schema.TABLE3_COLUMNS` (a per-copy number as printed, for one copy
+    of the ``copies`` the row runs)."""
 
     row_id: str
     label: str
-    params: Optional[int] = None
+    printed: dict[str, float] = field(default_factory=dict)
     copies: int = 1
-    total_params: Optional[int] = None
-    size_mb: Optional[float] = None
-    total_size_mb: Optional[float] = None
-    gpu_memory_mb: Optional[float] = None
-    fps: Optional[float] = None
     printed_on: Optional[str] = None
+
+    def value(self, key: str) -> Optional[float]:
+        """The row's value in Table III's column ``key``, as a reproduced row holds it: a number
+        printed per copy times the row's copies (a row printing only its total gives that);
+        ``None`` where the paper prints nothing."""
+        column = TABLE3[key]
+        if column.per_copy and key in self.printed:
+            return self.printed[key] * self.copies
+        if column.per_copy and column.total is not None:
+            return self.printed.get(column.total)
+        return self.printed.get(key)
 
 
 @dataclass(frozen=True)
@@ -126,6 +134,19 @@ def _opt_float(v: Any, where: str) -> Optional[float]:
     return float(v)
 
 
+#: The paper's field -> the Table III column it prints (paper_numbers.yaml ``table3`` rows).
+_PRINTED_AS: dict[str, str] = {c.paper: c.key for c in TABLE3_COLUMNS if c.paper is not None}
+_ROW_KEYS3 = ("label", "copies", "printed_on")
+
+
+def _table3_row(rid: str, r: dict[str, Any], where: str) -> PrintedTable3Row:
+    unknown = set(r) - set(_PRINTED_AS) - set(_ROW_KEYS3)
+    if unknown:
+        raise PaperNumbersError(f"{where}: unknown key(s) {sorted(unknown)}")
+    printed = {_PRINTED_AS[k]: v for k, v in r.items() if k in _PRINTED_AS and v is not None}
+    return PrintedTable3Row(rid, str(r.get("label", rid)), printed, r.get("copies", 1), r.get("printed_on"))
+
+
 def parse_paper_numbers(data: dict[str, Any], source: str = "paper_numbers.yaml") -> PaperNumbers:
     """Validate and convert the YAML mapping."""
     try:
@@ -154,17 +175,10 @@ def parse_paper_numbers(data: dict[str, Any], source: str = "paper_numbers.yaml"
         table2[ds] = rows
     table3: dict[str, dict[str, PrintedTable3Row]] = {}
     labels3: dict[str, str] = {}
-    fields3 = set(PrintedTable3Row.__dataclass_fields__) - {"row_id"}
     for grp, block in t3_raw.items():
         labels3[grp] = str(block.get("label", grp))
-        rows3: dict[str, PrintedTable3Row] = {}
-        for rid, r in block["rows"].items():
-            where = f"{source}: table3.groups.{grp}.rows.{rid}"
-            unknown = set(r) - fields3
-            if unknown:
-                raise PaperNumbersError(f"{where}: unknown key(s) {sorted(unknown)}")
-            rows3[rid] = PrintedTable3Row(row_id=rid, **r)
-        table3[grp] = rows3
+        table3[grp] = {rid: _table3_row(rid, r, f"{source}: table3.groups.{grp}.rows.{rid}")
+                       for rid, r in block["rows"].items()}
     return PaperNumbers(table2, labels2, table3, labels3, str(data["table3"].get("device", "")), data)
 
 

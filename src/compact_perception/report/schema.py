@@ -9,13 +9,16 @@ label of its own.
 - **columns** of Table II: the task metrics in task order, then TM and MV (eq. 6-7), with their
   labels, directions, the statistic their interval uses (:mod:`compact_perception.stats`) and the
   contrast "row a beats row b" (:func:`beats`);
+- **columns** of Table III (:data:`TABLE3_COLUMNS`): what a reproduced row holds, its header and
+  digits, and the paper's printed field it is compared with;
 - the two **MGN forms** (Algorithm 1 as printed, the authors' code) and the paper's row each
   is compared with (the paper prints one 15L+MGN row);
 - the **loss-weight names** a weighted run logs (``w_<task>``, dvclive and ``summary.json``).
 """
 from __future__ import annotations
 
-from typing import Callable
+from dataclasses import dataclass
+from typing import Any, Callable, Literal, Optional
 
 import numpy as np
 
@@ -28,7 +31,7 @@ __all__ = [
     "TASK_COLUMNS", "TABLE2_COLUMNS", "PER_FRAME_COLUMNS", "LOWER_IS_BETTER", "COLUMN_MD", "COLUMN_TEX",
     "column_stat", "stat_columns", "MGN_FORMS", "PAPER_MGN", "paper_row", "WEIGHT_KEYS", "WEIGHT_LABEL",
     "weight_key", "weight_task", "row_ids", "combination_models", "WEIGHT_PREFIX", "FLOOR_IDS", "FLOOR_LABEL",
-    "METRIC_TASK", "beats",
+    "METRIC_TASK", "beats", "Table3Column", "TABLE3_COLUMNS", "TABLE3",
 ]
 
 # ----------------------------------------------------------------------------- rows
@@ -100,6 +103,64 @@ def beats(col: str) -> Callable[[np.ndarray], np.ndarray]:
     if col in LOWER_IS_BETTER:
         return lambda v: v[..., 1] - v[..., 0]
     return lambda v: v[..., 0] - v[..., 1]
+
+
+# ----------------------------------------------------------------------------- Table III's columns
+@dataclass(frozen=True)
+class Table3Column:
+    """A column of Table III: the one definition the reproduced table (:mod:`.tables.table3`), the
+    paper's printed rows (:mod:`.paper`), their comparison (:mod:`.tables.comparison`) and the
+    efficiency claims (:mod:`.claims`) read.
+
+    ``key``: what a reproduced row holds (efficiency.json's key, table3.csv's column); ``header``:
+    its header on a CPU host, ``gpu_header`` on a GPU host where that differs; ``kind``: a
+    ``count`` (printed whole, with thousands separators), a ``number`` (``decimals`` digits) or a
+    ``text``; ``paper``: the field of paper_numbers.yaml's ``table3`` rows that prints it
+    (``None``: the paper prints none), ``per_copy``: printed per copy of a model the row runs
+    ``copies`` times (the row's value is that times its copies; a row that prints only its total,
+    the combination, gives ``total``'s); ``compared``: its name in ``paper_vs_reproduced``
+    (``None``: not compared there)."""
+
+    key: str
+    header: str
+    kind: Literal["count", "number", "text"]
+    decimals: int = 0
+    paper: Optional[str] = None
+    gpu_header: Optional[str] = None
+    per_copy: bool = False
+    total: Optional[str] = None
+    compared: Optional[str] = None
+
+    def header_on(self, gpu: bool) -> str:
+        return self.gpu_header if gpu and self.gpu_header is not None else self.header
+
+    def text(self, value: Any) -> str:
+        """``value`` as the tables print it (empty where there is none)."""
+        if value is None:
+            return ""
+        if self.kind == "count":
+            return f"{int(round(value)):,}"
+        if self.kind == "text":
+            return str(value)
+        return f"{value:.{self.decimals}f}"
+
+
+#: Table III's columns, in the table's order.
+TABLE3_COLUMNS: tuple[Table3Column, ...] = (
+    Table3Column("params", "Params", "count", paper="params", per_copy=True, total="total_params", compared="params"),
+    Table3Column("total_params", "Total params", "count", paper="total_params"),
+    Table3Column("size_mb", "Size (MB)", "number", 3, paper="size_mb", per_copy=True, total="total_size_mb",
+                 compared="size_mb"),
+    Table3Column("total_size_mb", "Total size (MB)", "number", 3, paper="total_size_mb"),
+    Table3Column("peak_memory_mb", "Peak memory, CPU estimate (MB)", "number", 1, paper="gpu_memory_mb",
+                 gpu_header="GPU memory (MB)", compared="memory_mb"),
+    Table3Column("fps", "FPS (CPU)", "number", 2, paper="fps", gpu_header="FPS", compared="fps"),
+    Table3Column("latency_ms", "Latency (ms)", "number", 2),
+    Table3Column("onnx_fps", "ONNX Runtime FPS (CPU)", "number", 2),
+    Table3Column("onnx_latency_ms", "ONNX Runtime latency (ms)", "number", 2),
+    Table3Column("device", "Device", "text"),
+)
+TABLE3: dict[str, Table3Column] = {c.key: c for c in TABLE3_COLUMNS}
 
 
 # ----------------------------------------------------------------------------- the two MGN forms

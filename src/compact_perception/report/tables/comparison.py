@@ -10,7 +10,7 @@ from typing import Iterator, Mapping, Optional, Sequence, TypeVar
 from ..collect import Cell, DatasetScale
 from ..paper import PaperCell, PaperNumbers
 from ..schema import (COLUMN_MD, COLUMN_TEX, COMBINATION, COMBINATION_SOURCE, DATASET_LABEL, ROW_LABEL, TABLE2_COLUMNS,
-                      TASK_COLUMNS, paper_row)
+                      TABLE3_COLUMNS, TASK_COLUMNS, Table3Column, paper_row)
 from .formats import (NOT_APPLICABLE, booktabs, csv_text, fmt_num, fmt_seeds, fmt_var, md_table, table_files,
                       tex_escape,
                       training_text)
@@ -75,23 +75,23 @@ def _table2_comparisons(paper: PaperNumbers, table2: dict[str, list[Table2Row]])
     return out
 
 
+#: The Table III columns compared with the paper's, by their name there (:attr:`~..schema.Table3Column.compared`).
+TABLE3_COMPARED: dict[str, Table3Column] = {c.compared: c for c in TABLE3_COLUMNS if c.compared is not None}
+
+
 def _table3_comparisons(paper: PaperNumbers, table3: dict[str, list[Table3Row]]) -> list[PaperComparison]:
-    """Table III: parameters and size (the paper's per-copy numbers times its copies), memory, FPS."""
+    """Table III: parameters and size (the paper's per-copy numbers times its copies), memory, FPS:
+    the columns of :data:`TABLE3_COMPARED`."""
     out: list[PaperComparison] = []
     for ds, r, prid in _with_paper_rows(table3):
         p3 = paper.table3_row(ds, prid)
         if p3 is None:
             continue
-        pairs = {
-            "params": (p3.params * p3.copies if p3.params is not None else p3.total_params, r.params),
-            "size_mb": (p3.size_mb * p3.copies if p3.size_mb is not None else p3.total_size_mb, r.size_mb),
-            "memory_mb": (p3.gpu_memory_mb, r.peak_memory_mb),
-            "fps": (p3.fps, r.fps),
-        }
-        for col, (pv3, ov) in pairs.items():
+        for name, column in TABLE3_COMPARED.items():
+            pv3, ov = p3.value(column.key), r.value(column.key)
             if pv3 is None and ov is None:
                 continue
-            out.append(PaperComparison(ds, "III", r.row_id, col, None if pv3 is None else float(pv3),
+            out.append(PaperComparison(ds, "III", r.row_id, name, None if pv3 is None else float(pv3),
                                   ours=None if ov is None else float(ov), paper_row=prid))
     return out
 
@@ -135,10 +135,8 @@ def _cmp_text(v: Optional[float], var: Optional[float] = None, below: bool = Fal
               latex: bool = False) -> str:
     if v is None:
         return NOT_APPLICABLE
-    if col == "params":
-        return f"{int(round(v)):,}"
-    if col in ("memory_mb", "fps", "size_mb"):
-        return f"{v:.2f}" if col == "fps" else f"{v:.1f}" if col == "memory_mb" else f"{v:.3f}"
+    if col in TABLE3_COMPARED:
+        return TABLE3_COMPARED[col].text(v)
     t = fmt_num(v)
     if var is not None:
         pm = " $\\pm$ " if latex else " ± "

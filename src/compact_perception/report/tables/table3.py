@@ -1,15 +1,17 @@
 """Table III (efficiency): per measured dataset, every model's parameters, state-dict size, peak
 memory and batch-1 FPS / latency (PyTorch, and ONNX Runtime for the compact models), and the
 combination of baselines as the sum of the models that give it; from
-``results/benchmark/efficiency.json`` (``pipeline/benchmark.py``), as Markdown, LaTeX and CSV."""
+``results/benchmark/efficiency.json`` (``pipeline/benchmark.py``), as Markdown, LaTeX and CSV. Its
+columns (headers, digits) are :data:`~..schema.TABLE3_COLUMNS`."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Mapping, Optional
 
 from ...core import catalog
-from ..schema import COMBINATION, COMBINATION_MODELS, COMPACT, DATASET_LABEL, ROW_LABEL, ROW_ORDER
-from .formats import NOT_AVAILABLE, booktabs, csv_text, fmt_num, md_table, table_files, tex_escape
+from ..schema import (COMBINATION, COMBINATION_MODELS, COMPACT, DATASET_LABEL, ROW_LABEL, ROW_ORDER, TABLE3,
+                      TABLE3_COLUMNS)
+from .formats import NOT_AVAILABLE, booktabs, csv_text, md_table, table_files, tex_escape
 
 #: How Table III names a row where the measured model differs from Table II's (GradNorm SegNet
 #: runs once per camera view).
@@ -19,24 +21,24 @@ COMBINATION_LABEL = "Combination (sum of the three)"
 
 @dataclass
 class Table3Row:
+    """One row of Table III: its value in each column of :data:`~..schema.TABLE3_COLUMNS` that it
+    has (``values``, by the column's key); ``available``: False where the row was not measured."""
+
     dataset: str
     row_id: str
     label: str
-    params: Optional[int] = None
-    total_params: Optional[int] = None
-    size_mb: Optional[float] = None
-    total_size_mb: Optional[float] = None
-    peak_memory_mb: Optional[float] = None
-    fps: Optional[float] = None
-    latency_ms: Optional[float] = None
-    device: Optional[str] = None
+    values: dict[str, Any] = field(default_factory=dict)
     available: bool = True
-    onnx_fps: Optional[float] = None            # ONNX Runtime, batch 1, CPU (compact models; issue 15)
-    onnx_latency_ms: Optional[float] = None
+
+    def value(self, key: str) -> Any:
+        """The row's value in column ``key`` (``None`` where it has none)."""
+        if key not in TABLE3:
+            raise KeyError(f"unknown Table III column {key!r}; known: {list(TABLE3)}")
+        return self.values.get(key)
 
 
-TABLE3_FIELDS: tuple[str, ...] = ("params", "total_params", "size_mb", "total_size_mb", "peak_memory_mb",
-                                  "fps", "latency_ms", "onnx_fps", "onnx_latency_ms", "device")
+#: The columns of table3.csv after the row's identity, in the table's order.
+TABLE3_FIELDS: tuple[str, ...] = tuple(c.key for c in TABLE3_COLUMNS)
 
 
 def _opt(m: Mapping[str, Any], key: str) -> Optional[float]:
@@ -52,9 +54,11 @@ def _combination_row(ds: str, models: Mapping[str, Any]) -> Table3Row:
     lat = sum(p["latency_ms"] for p in parts)  # type: ignore[index]
     n = sum(int(p["params"]) for p in parts)  # type: ignore[index]
     size = sum(float(p["size_mb"]) for p in parts)  # type: ignore[index]
-    return Table3Row(ds, COMBINATION, COMBINATION_LABEL, n, n, size, size,
-                     sum(float(p["peak_memory_mb"]) for p in parts),  # type: ignore[index]
-                     1e3 / lat if lat > 0 else None, lat, parts[0].get("device"))  # type: ignore[union-attr]
+    return Table3Row(ds, COMBINATION, COMBINATION_LABEL, {
+        "params": n, "total_params": n, "size_mb": size, "total_size_mb": size,
+        "peak_memory_mb": sum(float(p["peak_memory_mb"]) for p in parts),  # type: ignore[index]
+        "fps": 1e3 / lat if lat > 0 else None, "latency_ms": lat,
+        "device": parts[0].get("device")})  # type: ignore[union-attr]
 
 
 def _model_row(ds: str, rid: str, m: Optional[Mapping[str, Any]]) -> Table3Row:
@@ -63,10 +67,11 @@ def _model_row(ds: str, rid: str, m: Optional[Mapping[str, Any]]) -> Table3Row:
     if m is None:
         return Table3Row(ds, rid, label, available=False)
     own = rid in COMPACT
-    return Table3Row(ds, rid, label, int(m["params"]), int(m["params"]) if own else None,
-                     float(m["size_mb"]), float(m["size_mb"]) if own else None,
-                     float(m["peak_memory_mb"]), float(m["fps"]), float(m["latency_ms"]), m.get("device"),
-                     onnx_fps=_opt(m, "onnx_fps"), onnx_latency_ms=_opt(m, "onnx_latency_ms"))
+    return Table3Row(ds, rid, label, {
+        "params": int(m["params"]), "total_params": int(m["params"]) if own else None,
+        "size_mb": float(m["size_mb"]), "total_size_mb": float(m["size_mb"]) if own else None,
+        "peak_memory_mb": float(m["peak_memory_mb"]), "fps": float(m["fps"]), "latency_ms": float(m["latency_ms"]),
+        "device": m.get("device"), "onnx_fps": _opt(m, "onnx_fps"), "onnx_latency_ms": _opt(m, "onnx_latency_ms")})
 
 
 def build_table3(efficiency: dict[str, Any]) -> dict[str, list[Table3Row]]:
@@ -80,20 +85,13 @@ def build_table3(efficiency: dict[str, Any]) -> dict[str, list[Table3Row]]:
 
 def _texts(r: Table3Row) -> list[str]:
     if not r.available:
-        return [NOT_AVAILABLE] * len(TABLE3_FIELDS)
-    return [
-        "" if r.params is None else f"{r.params:,}", "" if r.total_params is None else f"{r.total_params:,}",
-        fmt_num(r.size_mb), fmt_num(r.total_size_mb), fmt_num(r.peak_memory_mb, 1), fmt_num(r.fps, 2),
-        fmt_num(r.latency_ms, 2), fmt_num(r.onnx_fps, 2), fmt_num(r.onnx_latency_ms, 2), r.device or "",
-    ]
+        return [NOT_AVAILABLE] * len(TABLE3_COLUMNS)
+    return [c.text(r.value(c.key)) for c in TABLE3_COLUMNS]
 
 
 def _header(efficiency: dict[str, Any]) -> list[str]:
     gpu = bool(efficiency.get("is_gpu"))
-    mem = "GPU memory (MB)" if gpu else "Peak memory, CPU estimate (MB)"
-    return ["Dataset", "Model", "Params", "Total params", "Size (MB)", "Total size (MB)", mem,
-            "FPS" if gpu else "FPS (CPU)", "Latency (ms)", "ONNX Runtime FPS (CPU)", "ONNX Runtime latency (ms)",
-            "Device"]
+    return ["Dataset", "Model", *(c.header_on(gpu) for c in TABLE3_COLUMNS)]
 
 
 def _note(efficiency: dict[str, Any]) -> str:
@@ -126,21 +124,22 @@ def table3_markdown(tables: dict[str, list[Table3Row]], efficiency: dict[str, An
     for ds, rows in tables.items():
         for i, r in enumerate(rows):
             body.append([_group_label(ds) if i == 0 else "", r.label] + _texts(r))
-    align = ["---", "---"] + ["---:"] * 9 + ["---"]
+    align = ["---", "---"] + ["---" if c.kind == "text" else "---:" for c in TABLE3_COLUMNS]
     return md_table(_header(efficiency), body, align) + "\n" + _note(efficiency) + "\n"
 
 
 def table3_latex(tables: dict[str, list[Table3Row]], efficiency: dict[str, Any]) -> str:
     return "\n".join(booktabs(
         ["Table III (reproduced). Requires \\usepackage{booktabs}.", _note(efficiency).replace("**", "")],
-        "ll" + "r" * 9 + "l", " & ".join(tex_escape(h) for h in _header(efficiency)),
+        "ll" + "".join("l" if c.kind == "text" else "r" for c in TABLE3_COLUMNS),
+        " & ".join(tex_escape(h) for h in _header(efficiency)),
         [[f"{tex_escape(_group_label(ds)) if i == 0 else ''} & {tex_escape(r.label)} & "
           + " & ".join(tex_escape(t) for t in _texts(r)) for i, r in enumerate(rows)] for ds, rows in tables.items()]))
 
 
 def table3_csv(tables: dict[str, list[Table3Row]], efficiency: dict[str, Any]) -> str:
     header = ["dataset", "row_id", "label", "available", *TABLE3_FIELDS, "is_gpu", "resolution"]
-    body = [[ds, r.row_id, r.label, int(r.available), *(getattr(r, f) for f in TABLE3_FIELDS),
+    body = [[ds, r.row_id, r.label, int(r.available), *(r.value(f) for f in TABLE3_FIELDS),
              int(bool(efficiency.get("is_gpu"))), efficiency.get("resolution")]
             for ds, rows in tables.items() for r in rows]
     return csv_text(header, body)
