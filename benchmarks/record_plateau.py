@@ -8,13 +8,14 @@ and in which ``dvc repro train@<ds> evaluate@<ds>`` has finished for the models 
 ``model_ids``) and their seeds (its seed lists). It writes, per run, how training stopped
 (``summary.json``), the test margin over the floor per task (``metrics.json`` ``floor_margin``)
 and every params value that shaped the run, resolved at that scale
-(:func:`compact_perception.report.plateau.settings_at`), with the commit (``git describe
+(:func:`compact_perception.core.plateau_record.settings_at`), with the commit (``git describe
 --always --dirty`` of DIR unless ``--commit`` says more), the machine and the command. The
 ``report`` stage reads the file (a dependency in dvc.yaml) and says which of today's settings
 differ from a recorded run's. Every run is checked by type and range against the record's schema
-(``compact_perception.report.plateau_schema``, the one the report reads with) before anything is
-written: a summary or metrics file that says otherwise is one line naming it and the field, exit
-status 1, and the file at ``--out`` is left as it was.
+(``compact_perception.core.plateau_record``, the one module that defines the record, which the
+report reads with; this script imports nothing of the report) before anything is written: a
+summary or metrics file that says otherwise is one line naming it and the field, exit status 1,
+and the file at ``--out`` is left as it was.
 """
 from __future__ import annotations
 
@@ -31,8 +32,8 @@ sys.path.insert(0, str(ROOT / "src"))
 from compact_perception.core import io  # noqa: E402
 from compact_perception.core.catalog import MODELS  # noqa: E402
 from compact_perception.core.config import ParamsError, load_params  # noqa: E402
-from compact_perception.report.collect import ReportInputError  # noqa: E402
-from compact_perception.report.plateau import record_runs  # noqa: E402
+from compact_perception.core.errors import ReportInputError  # noqa: E402
+from compact_perception.core.plateau_record import record_runs  # noqa: E402
 
 log = logging.getLogger("record_plateau")
 

@@ -1,6 +1,7 @@
-"""The record of runs trained to their plateau (report/plateau.py, benchmarks/record_plateau.py):
-what it keeps of a run, which of today's settings it notices changed, what the report's floor
-section says from it, and its errors."""
+"""The record of runs trained to their plateau (core/plateau_record.py, written by
+benchmarks/record_plateau.py, read by report/plateau.py): what it keeps of a run, which of today's
+settings it notices changed, what the report's floor section says from it, its errors, and that its
+writer and reader share its one definition without importing each other."""
 from __future__ import annotations
 
 import json
@@ -12,10 +13,12 @@ import pytest
 import yaml
 
 from compact_perception.core.config import load_params, parse_params
+from compact_perception.core.plateau_record import settings_at
 from compact_perception.report.collect import ReportInputError
 from compact_perception.report.index import build_reports
 from compact_perception.report.plateau import (PlateauRecord, PlateauRun, changed_settings, evidence, load_record,
-                                               recorded_sentence, settings_at)
+                                               recorded_sentence)
+from imports import import_closure
 from report_fixture import MODELS, bases_with, build_tree, seed_map
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -220,3 +223,14 @@ def test_the_committed_record_reads_and_the_report_stage_depends_on_it() -> None
     assert {r.model for r in rec.runs if r.stop_reason == "plateau"} >= set(BASELINES)
     dvc = yaml.safe_load((ROOT / "dvc.yaml").read_text())
     assert "benchmarks/records/full_plateau.json" in dvc["stages"]["report"]["deps"]
+
+
+def test_the_script_and_the_report_share_the_record_module_and_nothing_else() -> None:
+    """The record's one definition (core/plateau_record.py) sits below its writer and its reader:
+    the script imports it and nothing of the report, and the report's reader reads with it."""
+    record = ROOT / "src/compact_perception/core/plateau_record.py"
+    script = import_closure(ROOT, SCRIPT)
+    assert record in script
+    assert not [p for p in script if (ROOT / "src/compact_perception/report") in p.parents]
+    assert record in import_closure(ROOT, ROOT / "src/compact_perception/report/plateau.py")
+    assert not (ROOT / "src/compact_perception/report/plateau_schema.py").exists()

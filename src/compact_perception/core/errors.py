@@ -10,6 +10,11 @@ class RecordError(ValueError):
     """A raw record or dataset is unusable; the message names the frame id and the file."""
 
 
+class ReportInputError(ValueError):
+    """A report input is malformed (a run's metrics, the record of runs trained to their plateau,
+    or a file that record is made from); the message names the file and key."""
+
+
 class RunError(RuntimeError):
     """A run cannot start or cannot save (bad input, a full disk); the message names the file or key."""
 

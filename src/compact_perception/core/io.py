@@ -1,4 +1,5 @@
-"""Atomic, deterministic writing of outputs (SPEC 9: nothing half-written)."""
+"""Atomic, deterministic writing of outputs (SPEC 9: nothing half-written), and reading a JSON
+input whose every error names the file (:func:`read_json`)."""
 from __future__ import annotations
 
 import contextlib
@@ -13,6 +14,8 @@ from pathlib import Path
 from typing import Any, Iterator
 
 import numpy as np
+
+from .errors import ReportInputError
 
 _ZIP_EPOCH = (1980, 1, 1, 0, 0, 0)
 
@@ -66,6 +69,19 @@ def remove_leftovers(folder: str | os.PathLike) -> list[Path]:
     for f in found:
         f.unlink(missing_ok=True)
     return found
+
+
+def read_json(path: str | os.PathLike) -> dict[str, Any]:
+    """Parse a JSON object; errors (a missing file too) name the file (:class:`ReportInputError`)."""
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ReportInputError(f"{path}: missing") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise ReportInputError(f"{path}: not valid JSON ({err})") from None
+    if not isinstance(data, dict):
+        raise ReportInputError(f"{path}: expected a JSON object")
+    return data
 
 
 def write_bytes(path: str | os.PathLike, data: bytes) -> None:

@@ -41,7 +41,6 @@ variance the paper prints is averaged over the runs.
 """
 from __future__ import annotations
 
-import json
 import logging
 import math
 from dataclasses import dataclass, field
@@ -54,6 +53,8 @@ import pandas as pd
 
 from ..core import catalog
 from ..core.cache import frame_cluster
+from ..core.errors import ReportInputError
+from ..core.io import read_json
 from ..core.layout import RunPaths, floor_paths, run_paths
 from ..stats import Comparison, Group, make_comparison
 from .schema import COMBINATION, COMBINATION_SOURCE, FLOOR_IDS, PER_FRAME_COLUMNS, TABLE2_COLUMNS, TASK_COLUMNS
@@ -67,10 +68,6 @@ SeedSpec = Optional[Mapping[str, Any] | Sequence[int]]
 
 #: Blocks of metrics.json beyond the paper's (written by ``compact_perception.evaluate``).
 EXTRA_KEYS: tuple[str, ...] = ("class_iou", "depth", "argmax")
-
-
-class ReportInputError(ValueError):
-    """A report input is malformed; the message names the file and key."""
 
 
 @dataclass(frozen=True)
@@ -118,19 +115,6 @@ def _num(v: Any, where: str) -> float:
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)):
         raise ReportInputError(f"{where}: expected a finite number, got {v!r}")
     return float(v)
-
-
-def read_json(path: Path) -> dict[str, Any]:
-    """Parse a JSON object; errors (a missing file too) name the file."""
-    try:
-        data = json.loads(Path(path).read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ReportInputError(f"{path}: missing") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as err:
-        raise ReportInputError(f"{path}: not valid JSON ({err})") from None
-    if not isinstance(data, dict):
-        raise ReportInputError(f"{path}: expected a JSON object")
-    return data
 
 
 def read_metrics(path: Path, dataset: str = "", model: str = "") -> ModelResult:

@@ -34,10 +34,11 @@ from typing import Any, Optional, Sequence
 
 from ..core import io
 from ..core.catalog import MODELS, STOP_PLATEAU, compact_model_ids, dataset_ids, metric_of, model_ids
+from ..core.io import read_json
 from ..core.layout import RunPaths
 from .claims import build_claims, claims_files, coverage_text, exact_counts, verdict_counts
 from .collect import (DatasetScale, ModelResult, SeedSpec, collect_scale, list_runs, load_npz, load_results,
-                      load_row_frames, read_json, seeds_for)
+                      load_row_frames, seeds_for)
 from .gate import BELOW, Gate, dataset_gate
 from .figures import plot_loss_weights, plot_qualitative, plot_training_curves
 from .paper import PaperNumbers, load_paper_numbers
