@@ -26,7 +26,9 @@ The report needs no torch: nothing the report stage can import (``pipeline/repor
 module of ``report/`` and ``stats/``, and everything they import, lazily too) imports torch or
 the modules that compute a run's numbers (:data:`RUN_SIDE`); the facts it needs of them (score
 formulas, metric and floor labels, the depth convention) are ``core``'s. Checked on the import
-graph (naming the chain) and by importing the report in a fresh interpreter.
+graph (naming the chain) and by importing the report in a fresh interpreter. No script of
+``benchmarks/`` imports the report: the plateau record's writer and the report's reader of it
+share its one definition, ``core/plateau_record``, and nothing else.
 """
 from __future__ import annotations
 
@@ -195,6 +197,38 @@ def _chain_to_forbidden(entry: Path) -> Optional[list[str]]:
 def test_no_report_module_reaches_torch_or_the_run_side(entry: Path):
     chain = _chain_to_forbidden(entry)
     assert chain is None, "the report must not import torch or " + ", ".join(RUN_SIDE) + ": " + " -> ".join(chain)
+
+
+def _chain_to_report(entry: Path) -> Optional[list[str]]:
+    """The import chain (files) from ``entry`` to a module of ``report/``, breadth first; ``None`` when there is none."""
+    todo: deque[tuple[Path, list[str]]] = deque([(entry, [entry.relative_to(ROOT).as_posix()])])
+    seen = {entry}
+    while todo:
+        path, chain = todo.popleft()
+        for name in sorted(module_imports(ROOT, path)):
+            found = module_file(ROOT, name)
+            if found is None or found in seen:
+                continue
+            if (PKG / "report") in found.parents:
+                return chain + [found.relative_to(ROOT).as_posix()]
+            seen.add(found)
+            todo.append((found, chain + [found.relative_to(ROOT).as_posix()]))
+    return None
+
+
+@pytest.mark.parametrize("script", sorted((ROOT / "benchmarks").glob("*.py")), ids=lambda p: p.name)
+def test_no_benchmark_script_imports_the_report(script: Path):
+    """The scripts write what the report reads (``benchmarks/record_plateau.py`` the plateau record,
+    whose one definition is ``core/plateau_record``, read by ``report/plateau``): none imports the
+    report, so the writer and its reader share only what is below both."""
+    chain = _chain_to_report(script)
+    assert chain is None, "a benchmark script must not import the report: " + " -> ".join(chain)
+
+
+def test_the_plateau_records_writer_and_reader_share_its_one_definition():
+    record = f"{TOP}.core.plateau_record"
+    for user in (ROOT / "benchmarks" / "record_plateau.py", PKG / "report" / "plateau.py"):
+        assert record in module_imports(ROOT, user), f"{user.relative_to(ROOT)} does not read with {record}"
 
 
 def test_the_checker_finds_a_lazy_import_two_modules_down(tmp_path, monkeypatch):
