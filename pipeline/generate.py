@@ -71,7 +71,7 @@ def _carla(params, dataset_id: str, out: Path, figure: Path) -> int:
     """source: carla: check the recording at datasets.<ds>.carla.root and copy it into ``out``."""
     from compact_perception.carla.recording import import_recording
     from compact_perception.core.errors import RecordError
-    from compact_perception.preprocess import load_record
+    from compact_perception.record import load_record
     from compact_perception.world.figure import save_frame_figure
 
     root = getattr(params.datasets, dataset_id).carla.root

@@ -13,6 +13,8 @@ Package map (one concern per module):
 - ``authors``      reading the authors' released CARLA dataset
 - ``carla``        recording sets from a CARLA server (optional ``carla`` client): the sensor rig,
                    the sensors' buffer formats, BEV ground truth from the map, the resumable writer
+- ``record``       the raw record contract of data/raw/<ds>/ (manifest, frame npz): the sources
+                   write it, ``preprocess`` reads it
 - ``dvs``/``lidar``/``preprocess`` the paper's preprocessing, eq. (1) and eq. (2)-(5)
 - ``figures_lidar`` the LiDAR preprocessing figure (Fig. 5-like)
 - ``qualitative``  the qualitative grid of one test frame (Fig. 6/7), drawn by the data stages

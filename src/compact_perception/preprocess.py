@@ -1,7 +1,8 @@
-"""Raw record -> preprocessed frame (paper section IV-C; docs/ARCHITECTURE.md).
+"""The preprocess stage: raw record -> preprocessed frame (paper section IV-C; docs/ARCHITECTURE.md).
 
-A raw record (``data/raw/<ds>/frames/<id>.npz``) holds the sensor data as CARLA delivers
-it; :func:`preprocess_record` turns it into the compact frame dict of the cache:
+A raw record (``data/raw/<ds>/frames/<id>.npz``, its contract in :mod:`compact_perception.record`)
+holds the sensor data as CARLA delivers it; :func:`preprocess_record` turns it into the compact
+frame dict of the cache:
 
 | key | dtype, shape | from |
 |---|---|---|
@@ -23,9 +24,6 @@ import json
 import logging
 import multiprocessing as mp
 import os
-import zipfile
-import zlib
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator, Mapping, Sequence
 
@@ -40,60 +38,9 @@ from .core.machine import bounded
 from .dvs import events_to_image
 from .core.errors import RecordError  # re-exported: ``from .preprocess import RecordError`` keeps working
 from .lidar import ls_ground_truth, topview_15l
+from .record import SPLITS, RecordSpec, load_manifest, load_record, manifest_spec, validate_record
 
 log = logging.getLogger(__name__)
-
-SPLITS: tuple[str, ...] = ("train", "val", "test")
-
-
-@dataclass(frozen=True)
-class RecordSpec:
-    """What a raw record must contain."""
-
-    views: tuple[str, ...]
-    size: int
-    has_dvs: bool = True
-    n_bev: int = 9
-
-
-def load_record(path: str | os.PathLike, frame_id: str) -> dict[str, np.ndarray]:
-    """Read every array of a raw npz eagerly; corrupt/truncated/missing files raise RecordError."""
-    path = Path(path)
-    if not path.is_file():
-        raise RecordError(f"frame {frame_id}: {path}: file not found")
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            return {k: z[k] for k in z.files}
-    except (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError, KeyError) as err:
-        raise RecordError(f"frame {frame_id}: {path}: corrupt or truncated npz ({type(err).__name__}: {err})") from None
-
-
-def _expect(arrays: Mapping[str, np.ndarray], key: str, shape: tuple[int | None, ...], kinds: str, where: str) -> np.ndarray:
-    if key not in arrays:
-        raise RecordError(f"{where}: missing key {key!r} (has {sorted(arrays)})")
-    a = arrays[key]
-    ok_shape = a.ndim == len(shape) and all(s is None or s == d for s, d in zip(shape, a.shape))
-    if not ok_shape:
-        want = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ")"
-        raise RecordError(f"{where}: {key} has shape {a.shape}, expected {want}")
-    if a.dtype.kind not in kinds:
-        raise RecordError(f"{where}: {key} has dtype {a.dtype}, expected kind {kinds!r}")
-    return a
-
-
-def validate_record(arrays: Mapping[str, np.ndarray], spec: RecordSpec, where: str) -> None:
-    """Check keys, shapes and dtypes of a raw record (docs/ARCHITECTURE.md table); ``where`` names frame and file."""
-    s = spec.size
-    for v in spec.views:
-        _expect(arrays, f"rgb_{v}", (s, s, 3), "u", where)
-        _expect(arrays, f"sem_{v}", (s, s, 3), "u", where)
-        _expect(arrays, f"depth_{v}", (s, s), "u", where)
-        if spec.has_dvs:
-            _expect(arrays, f"dvs_{v}", (None, 4), "iuf", where)
-    lid = _expect(arrays, "lidar", (None, 4), "f", where)
-    _expect(arrays, "lidar_tag", (lid.shape[0],), "iu", where)
-    _expect(arrays, "bev", (spec.n_bev, s, s), "ub", where)
-
 
 def preprocess_record(
     arrays: Mapping[str, np.ndarray],
@@ -129,24 +76,6 @@ def preprocess_record(
     return frame
 
 
-def load_manifest(raw_dir: str | os.PathLike) -> dict[str, Any]:
-    """Read ``manifest.json``; its absence means the world never finished writing the dataset."""
-    path = Path(raw_dir) / "manifest.json"
-    if not path.is_file():
-        raise RecordError(f"{raw_dir}: dataset incomplete (no manifest.json); run the generate stage first")
-    try:
-        manifest = json.loads(path.read_text())
-    except json.JSONDecodeError as err:
-        raise RecordError(f"{path}: not valid JSON: {err}") from None
-    for key in ("splits", "resolution", "views"):
-        if key not in manifest:
-            raise RecordError(f"{path}: missing key {key!r}")
-    for split in SPLITS:
-        if not manifest["splits"].get(split):
-            raise RecordError(f"{path}: split {split!r} is empty")
-    return manifest
-
-
 def _process_one(task: tuple[str, str, RecordSpec, dict[str, Any]]) -> dict[str, Any]:
     path, frame_id, spec, pp_dict = task
     pp = PreprocessParams(**pp_dict)
@@ -170,12 +99,7 @@ def iter_preprocessed(
 def preprocess_sim(raw_dir: str | os.PathLike, out_dir: str | os.PathLike, dataset_id: str, pp: PreprocessParams) -> Path:
     """``data/raw/<ds>/`` -> ``data/cache/<ds>/`` (atomic). Returns the cache directory."""
     manifest = load_manifest(raw_dir)
-    spec = RecordSpec(
-        views=tuple(manifest["views"]),
-        size=int(manifest["resolution"]),
-        has_dvs=bool(manifest.get("has_dvs", True)),
-        n_bev=len(manifest.get("bev_classes", [None] * 9)),
-    )
+    spec = manifest_spec(manifest)
     meta = {
         "dataset": dataset_id,
         "source": manifest.get("source", "sim"),

@@ -4,7 +4,7 @@ brings a complete recording into ``data/raw/<ds>`` (the ``generate`` stage of ``
 The collector writes ``datasets.<ds>.carla.root`` (never ``data/raw/<ds>``, a DVC output)::
 
     <root>/plan.json              written first: what is recorded (episodes, rig, settings)
-    <root>/frames/<id>.npz        one raw record per frame (docs/ARCHITECTURE.md), each atomically
+    <root>/frames/<id>.npz        one raw record per frame (compact_perception.record), each atomically
     <root>/episodes/ep<k>.json    written once episode k's frames are all on disk: its frames' metadata
     <root>/manifest.json          written LAST, once every episode is complete
 
@@ -34,13 +34,12 @@ from ..core.classes import BEV_NAMES, CARLA_NAMES
 from ..core.config import Params
 from ..core.errors import RecordError
 from ..geometry import VIEWS
-from ..preprocess import RecordSpec, load_record, validate_record
+from ..record import SPLITS, RecordSpec, load_record, validate_record
 from .conditions import draw_condition
 from .rig import sensor_specs
 
 log = logging.getLogger(__name__)
 
-SPLITS = ("train", "val", "test")
 RECORD_KEYS = tuple(f"{k}_{v}" for v in VIEWS for k in ("rgb", "dvs", "sem", "depth")) + (
     "lidar", "lidar_tag", "bev", "boxes", "ego_pose")
 

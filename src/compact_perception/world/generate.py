@@ -28,6 +28,7 @@ from ..core.config import TOWNS, Params, ParamsError, WorldParams
 from ..core.errors import RunError
 from ..core.machine import bounded
 from ..geometry import VIEWS
+from ..record import SPLITS
 from . import camera as cam
 from .actors import Episode, boxes_to_aabb
 from .bev_gt import bev_masks
@@ -43,7 +44,6 @@ log = logging.getLogger(__name__)
 CAMERA_FAR_M = 80.0
 #: albedo of a lit traffic-light head: green, yellow, red
 LIGHT_RGB = np.array([[0.1, 1.0, 0.2], [1.0, 0.85, 0.05], [1.0, 0.08, 0.05]], np.float32)
-_SPLITS = ("train", "val", "test")
 
 
 @dataclass
@@ -173,7 +173,7 @@ def episode_count(params: Params, dataset_id: str) -> tuple[int, int]:
     dp = getattr(params.datasets, dataset_id)
     n = dp.split_ratio.at(params.scale).counts(dp.frames.at(params.scale))
     E = params.world.frames_per_episode
-    return sum(n.values()), sum(-(-n[s] // E) for s in _SPLITS)
+    return sum(n.values()), sum(-(-n[s] // E) for s in SPLITS)
 
 
 def iter_episodes(params: Params, dataset_id: str) -> Iterator[dict]:
@@ -187,9 +187,9 @@ def iter_episodes(params: Params, dataset_id: str) -> Iterator[dict]:
         towns = {"train": list(dp.train_towns), "val": list(dp.eval_towns), "test": list(dp.eval_towns)}
     else:
         allt = list(dict.fromkeys(list(dp.train_towns) + list(dp.eval_towns)))
-        towns = {s: allt for s in _SPLITS}
+        towns = {s: allt for s in SPLITS}
     idx = 0
-    for split in _SPLITS:
+    for split in SPLITS:
         left, k = n[split], 0
         while left > 0:
             m = min(E, left)
@@ -291,7 +291,7 @@ def generate_dataset(params: Params, dataset_id: str, out_dir: str | Path) -> Pa
         frames_dir.mkdir()
         wp_dict = wp.model_dump(mode="json")
         jobs = ((wp_dict, e, S, str(frames_dir)) for e in iter_episodes(params, dataset_id))
-        splits: dict[str, list[str]] = {s: [] for s in _SPLITS}
+        splits: dict[str, list[str]] = {s: [] for s in SPLITS}
         frames: dict[str, dict] = {}
         pix: dict[str, np.ndarray] = {}
         pts: dict[str, np.ndarray] = {}
