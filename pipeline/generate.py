@@ -43,7 +43,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if dp.source == "carla":
         return _carla(params, args.dataset, Path(args.out) / args.dataset, Path(args.figure_dir) / f"world_{args.dataset}.png")
-    from compact_perception.world.figure import save_frame_figure
+    from compact_perception.figures_generate import save_frame_figure
     from compact_perception.world.generate import generate_dataset, iter_episodes, render_episode
 
     try:
@@ -72,7 +72,7 @@ def _carla(params, dataset_id: str, out: Path, figure: Path) -> int:
     from compact_perception.carla.recording import import_recording
     from compact_perception.core.errors import RecordError
     from compact_perception.record import load_record
-    from compact_perception.world.figure import save_frame_figure
+    from compact_perception.figures_generate import save_frame_figure
 
     root = getattr(params.datasets, dataset_id).carla.root
     try:

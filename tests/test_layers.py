@@ -14,8 +14,9 @@ below it):
 2. leaf modules -- one concern each, on top of ``core``: ``data``, ``models``, ``weighting``,
    ``geometry``, ``dvs``, ``lidar``, ``world``, ``nuscenes``, ``authors``, ``carla``,
    ``preprocess``, ``losses``, ``metrics``, ``floor``, ``plan``, ``schedule`` (the plateau rule
-   shared by training and MGN), ``qualitative`` (the qualitative grid, drawn by the data stages
-   and the report), ``figures_lidar``, ``efficiency`` (the model measurements of Table III),
+   shared by training and MGN), ``qualitative`` (the qualitative grid, drawn by the generate stage
+   and the report), ``figures_generate`` and ``figures_preprocess`` (the data stages' figures),
+   ``efficiency`` (the model measurements of Table III),
    ``onnx_export`` (ONNX export of a network).
 3. ``training``, ``evaluate`` and ``timing`` (the benchmark's inference variants, which use
    ``training.precision``) -- they run the networks of layer 2.
@@ -55,8 +56,8 @@ LAYERS: dict[str, int] = {
     "record": RECORD,
     **{name: LEAF for name in (
         "data", "models", "weighting", "geometry", "dvs", "lidar", "world", "nuscenes", "authors", "carla",
-        "preprocess", "losses", "metrics", "floor", "plan", "schedule", "qualitative", "figures_lidar",
-        "efficiency", "onnx_export")},
+        "preprocess", "losses", "metrics", "floor", "plan", "schedule", "qualitative", "figures_generate",
+        "figures_preprocess", "efficiency", "onnx_export")},
     "training": RUN, "evaluate": RUN, "timing": RUN,
     "report": REPORT, "stats": REPORT,
 }

@@ -16,8 +16,9 @@ Package map (one concern per module):
 - ``record``       the raw record contract of data/raw/<ds>/ (manifest, frame npz): the sources
                    write it, ``preprocess`` reads it
 - ``dvs``/``lidar``/``preprocess`` the paper's preprocessing, eq. (1) and eq. (2)-(5)
-- ``figures_lidar`` the LiDAR preprocessing figure (Fig. 5-like)
-- ``qualitative``  the qualitative grid of one test frame (Fig. 6/7), drawn by the data stages
+- ``figures_generate`` the generate stage's figure: one example frame of a source (Fig. 1-like)
+- ``figures_preprocess`` the preprocess stage's figure: the LiDAR preprocessing (Fig. 5-like)
+- ``qualitative``  the qualitative grid of one test frame (Fig. 6/7), drawn by the generate stage
                    (authors' source) and the report
 - ``data``         the PyTorch loader over the cache
 - ``models``       the compact model and the baselines, ``build_model(model_id, dataset_id)``

@@ -511,7 +511,7 @@ def describe_authors_dataset(root: str | os.PathLike | None, splits: Any, datase
     release as :func:`ingest_authors` would, then writes a manifest pointing at ``root`` (split
     files, keys and frame ids) and a Fig. 1-like figure of the first test frame."""
     from .core import io
-    from .qualitative import plot_qualitative
+    from .figures_generate import save_cache_frame_figure
 
     size = _check_size(resolution)
     plan = plan_authors(root, splits, dataset_id)
@@ -521,11 +521,8 @@ def describe_authors_dataset(root: str | os.PathLike | None, splits: Any, datase
         check_frames(tasks, pool, f"{dataset_id} check")
     test = plan.splits["test"]
     frame = convert_frame(test.frame_dir, test.ids[0], plan.n_seg, plan.n_bev, size)
-    inputs = {k: np.asarray(frame[k])[None] for k in ("rgb", "dvs", "lidar")}
-    inputs.update({f"gt_{k}": np.asarray(frame[k])[None] for k in ("de", "ss", "ls", "bevp")})
-    inputs["frame_ids"] = np.array([test.ids[0]])
-    plot_qualitative(dataset_id, inputs, {}, Path(figure_path), frame=0, models=[],
-                     title=f"dataset {dataset_id}: authors' CARLA data, test frame {test.ids[0]}")
+    save_cache_frame_figure(dataset_id, frame, test.ids[0], figure_path,
+                            title=f"dataset {dataset_id}: authors' CARLA data, test frame {test.ids[0]}")
     with io.atomic_dir(out_dir) as tmp:
         io.write_json(tmp / "manifest.json", {
             "dataset": dataset_id, "source": "authors", "authors_root": str(plan.root.resolve()),

@@ -144,7 +144,7 @@ def preprocess_dataset(
         cache = ingest_authors(ds.authors_root, ds.authors_splits, out_dir, dataset_id,
                                resolution=params.world.resolution.at(params.scale), workers=params.preprocess.workers)
     if figure_path is not None:
-        from .figures_lidar import plot_lidar_layers
+        from .figures_preprocess import plot_lidar_layers
 
         frame = min(params.evaluate.figure_frame, len(json.loads((cache / "test" / "frame_ids.json").read_text())) - 1)
         plot_lidar_layers(figure_lidar_of(cache, "test", frame), figure_path, title=f"Dataset {dataset_id}: LiDAR preprocessing (test frame {frame})")

@@ -1,4 +1,5 @@
-"""Fig. 5-like figure: the 15-layer LiDAR tensor of one frame (section IV-C, eq. (2)-(5))."""
+"""The preprocess stage's figure, ``reports/figures/lidar_preprocessing_<ds>.png`` (Fig. 5-like):
+the 15-layer LiDAR tensor of one cache frame (section IV-C, eq. (2)-(5))."""
 from __future__ import annotations
 
 import logging

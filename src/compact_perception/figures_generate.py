@@ -1,13 +1,21 @@
-"""Fig. 1-like panel of one world frame: 4 RGB, 4 DVS, 4 semantic, 4 depth, LiDAR top view, BEV."""
+"""The generate stage's figure, ``reports/figures/world_<ds>.png``: one example frame of a source.
+
+A raw record (the world's, a CARLA recording's) is drawn as the Fig. 1-like panel
+(:func:`save_frame_figure`: 4 RGB, 4 DVS, 4 semantic, 4 depth, LiDAR top view, BEV); a source
+without raw records (the authors' release) as the qualitative grid of its cache frame
+(:func:`save_cache_frame_figure`, drawn by :mod:`compact_perception.qualitative`, which the
+report shares).
+"""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any, Mapping
 
 import numpy as np
 
-from ..core import io
-from ..core.classes import BEV_PALETTE, CARLA_PALETTE
-from ..geometry import VIEWS, topview_index
+from .core import io
+from .core.classes import BEV_PALETTE, CARLA_PALETTE
+from .geometry import VIEWS, topview_index
 
 
 def dvs_image(events: np.ndarray, size: int) -> np.ndarray:
@@ -46,7 +54,7 @@ def save_frame_figure(rec: dict, path: str | Path, range_m: float = 32.0, title:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .camera import decode_depth
+    from .world.camera import decode_depth
 
     S = rec["rgb_f"].shape[0]
     fig, axes = plt.subplots(5, 4, figsize=(8, 10.5))
@@ -73,3 +81,13 @@ def save_frame_figure(rec: dict, path: str | Path, range_m: float = 32.0, title:
         fig.suptitle(title, fontsize=9)
     fig.tight_layout()
     io.write_figure(fig, path, dpi=90)
+
+
+def save_cache_frame_figure(dataset_id: str, frame: Mapping[str, Any], frame_id: str, path: str | Path, title: str = "") -> None:
+    """The qualitative grid (inputs and ground truth, no model) of one cache frame dict."""
+    from .qualitative import plot_qualitative
+
+    inputs = {k: np.asarray(frame[k])[None] for k in ("rgb", "dvs", "lidar")}
+    inputs.update({f"gt_{k}": np.asarray(frame[k])[None] for k in ("de", "ss", "ls", "bevp")})
+    inputs["frame_ids"] = np.array([frame_id])
+    plot_qualitative(dataset_id, inputs, {}, Path(path), frame=0, models=[], title=title)
