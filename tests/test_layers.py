@@ -10,18 +10,20 @@ below it):
 
 0. ``core`` -- params, catalog, registries, io, errors: imports nothing of the project above it.
 1. ``record`` -- the raw record contract of ``data/raw/<ds>/`` (manifest, frame npz): the sources
-   write it and the preprocess stage reads it, so no source imports its consumer.
+   write it and the preprocess stage reads it, so neither imports the other.
 2. leaf modules -- one concern each, on top of ``core``: ``data``, ``models``, ``weighting``,
-   ``geometry``, ``dvs``, ``lidar``, ``world``, ``nuscenes``, ``authors``, ``carla``,
-   ``preprocess``, ``losses``, ``metrics``, ``floor``, ``plan``, ``schedule`` (the plateau rule
-   shared by training and MGN), ``qualitative`` (the qualitative grid, drawn by the generate stage
-   and the report), ``figures_generate`` and ``figures_preprocess`` (the data stages' figures),
-   ``efficiency`` (the model measurements of Table III),
-   ``onnx_export`` (ONNX export of a network).
-3. ``training``, ``evaluate`` and ``timing`` (the benchmark's inference variants, which use
+   ``geometry``, ``dvs``, ``lidar``, ``world``, ``nuscenes``, ``authors``, ``carla`` (the sources'
+   own code, ``world.source`` and ``carla.source`` included), ``losses``, ``metrics``, ``floor``,
+   ``plan``, ``schedule`` (the plateau rule shared by training and MGN), ``qualitative`` (the
+   qualitative grid, drawn by the generate stage and the report), ``figures_generate`` and
+   ``figures_preprocess`` (the data stages' figures), ``efficiency`` (the model measurements of
+   Table III), ``onnx_export`` (ONNX export of a network).
+3. ``sources`` (the registry of data sources) and ``preprocess`` (the preprocess stage, which
+   looks the source up) -- they join the sources to the stages.
+4. ``training``, ``evaluate`` and ``timing`` (the benchmark's inference variants, which use
    ``training.precision``) -- they run the networks of layer 2.
-4. ``report`` and ``stats`` (the report's statistics) -- they read what layer 3 wrote.
-5. ``pipeline`` -- the stage entry points (outside ``src``; may import everything).
+5. ``report`` and ``stats`` (the report's statistics) -- they read what layer 4 wrote.
+6. ``pipeline`` -- the stage entry points (outside ``src``; may import everything).
 
 The package's own ``__init__`` imports nothing of the project, so it is layer 0.
 
@@ -50,19 +52,20 @@ ROOT = Path(__file__).resolve().parents[1]
 PKG = ROOT / "src" / "compact_perception"
 TOP = "compact_perception"
 
-CORE, RECORD, LEAF, RUN, REPORT = 0, 1, 2, 3, 4
+CORE, RECORD, LEAF, SOURCES, RUN, REPORT = 0, 1, 2, 3, 4, 5
 LAYERS: dict[str, int] = {
     "": CORE, "core": CORE,
     "record": RECORD,
     **{name: LEAF for name in (
         "data", "models", "weighting", "geometry", "dvs", "lidar", "world", "nuscenes", "authors", "carla",
-        "preprocess", "losses", "metrics", "floor", "plan", "schedule", "qualitative", "figures_generate",
-        "figures_preprocess", "efficiency", "onnx_export")},
+        "losses", "metrics", "floor", "plan", "schedule", "qualitative", "figures_generate", "figures_preprocess",
+        "efficiency", "onnx_export")},
+    "sources": SOURCES, "preprocess": SOURCES,
     "training": RUN, "evaluate": RUN, "timing": RUN,
     "report": REPORT, "stats": REPORT,
 }
-LAYER_NAMES = {CORE: "core", RECORD: "record contract", LEAF: "leaf modules", RUN: "training/evaluate",
-               REPORT: "report"}
+LAYER_NAMES = {CORE: "core", RECORD: "record contract", LEAF: "leaf modules", SOURCES: "data sources",
+               RUN: "training/evaluate", REPORT: "report"}
 
 #: Subpackages of one layer that must not import each other (the trainable parts stay separate:
 #: a network does not know its loss weighting, nor the weighting the network).
@@ -148,8 +151,9 @@ def test_checker_resolves_relative_and_lazy_imports(tmp_path):
     ("compact_perception.authors", "compact_perception.report.qualitative", True),
     ("compact_perception.report.study", "compact_perception.weighting", False),
     ("compact_perception.training.train", "compact_perception.core.config", False),
-    ("compact_perception.record", "compact_perception.preprocess", True),  # the contract, its consumer
+    ("compact_perception.carla.recording", "compact_perception.preprocess", True),  # a source, its consumer
     ("compact_perception.carla.recording", "compact_perception.record", False),
+    ("compact_perception.preprocess", "compact_perception.sources", False),
 ])
 def test_layer_order(importer, imported, upward):
     assert (_layer(imported) > _layer(importer)) is upward

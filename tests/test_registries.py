@@ -50,6 +50,24 @@ def test_params_yaml_follows_the_registries():
         assert (settings is None) == (schema is None) and (schema is None or isinstance(settings, schema))
 
 
+def test_the_data_sources_equal_the_schema():
+    """``datasets.<ds>.source`` accepts exactly the registered sources, and each says what it does in
+    each data stage (compact_perception.sources): no stage branches on the source by hand."""
+    import typing
+
+    from compact_perception.core.params_schema import SimDatasetParams
+    from compact_perception.sources import SOURCES
+
+    assert set(typing.get_args(SimDatasetParams.model_fields["source"].annotation)) == set(SOURCES.keys())
+    for key in SOURCES.keys():
+        source = SOURCES[key]
+        assert callable(source.write_raw) and callable(source.draw_example), key
+        assert source.cache is None or callable(source.cache), key
+    for stage in (ROOT / "pipeline" / "generate.py", ROOT / "src" / "compact_perception" / "preprocess.py"):
+        text = stage.read_text()
+        assert "source ==" not in text and "source in (" not in text, stage
+
+
 def test_every_weighting_declares_label_and_schema():
     for key in WEIGHTINGS.keys():
         cls = weighting_class(key)

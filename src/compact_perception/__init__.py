@@ -15,6 +15,8 @@ Package map (one concern per module):
                    the sensors' buffer formats, BEV ground truth from the map, the resumable writer
 - ``record``       the raw record contract of data/raw/<ds>/ (manifest, frame npz): the sources
                    write it, ``preprocess`` reads it
+- ``sources``      the data sources by ``datasets.<ds>.source`` (sim, authors, carla), each with its
+                   raw records, example frame and cache, looked up by the generate and preprocess stages
 - ``dvs``/``lidar``/``preprocess`` the paper's preprocessing, eq. (1) and eq. (2)-(5)
 - ``figures_generate`` the generate stage's figure: one example frame of a source (Fig. 1-like)
 - ``figures_preprocess`` the preprocess stage's figure: the LiDAR preprocessing (Fig. 5-like)

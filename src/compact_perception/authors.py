@@ -66,6 +66,7 @@ cache is then built atomically, so a decoding error found later leaves nothing b
 from __future__ import annotations
 
 import contextlib
+import json
 import logging
 import multiprocessing as mp
 import os
@@ -80,6 +81,7 @@ from PIL import Image, UnidentifiedImageError
 from tqdm import tqdm
 
 from .core.cache import write_cache
+from .core.config import Params
 from .dvs import dvs_colour_to_image
 from .core.errors import RecordError
 from .core.machine import bounded
@@ -505,13 +507,11 @@ def ingest_authors(root: str | os.PathLike | None, splits: Any, out_dir: str | o
 
 
 def describe_authors_dataset(root: str | os.PathLike | None, splits: Any, dataset_id: str,
-                             out_dir: str | os.PathLike, figure_path: str | os.PathLike,
-                             resolution: int = SOURCE_SIZE, workers: int = 1) -> Path:
-    """The ``generate`` stage for ``source: authors``: nothing is rendered. Checks the whole
-    release as :func:`ingest_authors` would, then writes a manifest pointing at ``root`` (split
-    files, keys and frame ids) and a Fig. 1-like figure of the first test frame."""
+                             out_dir: str | os.PathLike, resolution: int = SOURCE_SIZE, workers: int = 1) -> Path:
+    """The ``generate`` stage's raw step for ``source: authors``: nothing is rendered. Checks the
+    whole release as :func:`ingest_authors` would, then writes a manifest pointing at ``root``
+    (split files, keys and frame ids)."""
     from .core import io
-    from .figures_generate import save_cache_frame_figure
 
     size = _check_size(resolution)
     plan = plan_authors(root, splits, dataset_id)
@@ -519,10 +519,6 @@ def describe_authors_dataset(root: str | os.PathLike | None, splits: Any, datase
     tasks = _tasks(plan, size)
     with _pool(max(1, int(workers))) as pool:
         check_frames(tasks, pool, f"{dataset_id} check")
-    test = plan.splits["test"]
-    frame = convert_frame(test.frame_dir, test.ids[0], plan.n_seg, plan.n_bev, size)
-    save_cache_frame_figure(dataset_id, frame, test.ids[0], figure_path,
-                            title=f"dataset {dataset_id}: authors' CARLA data, test frame {test.ids[0]}")
     with io.atomic_dir(out_dir) as tmp:
         io.write_json(tmp / "manifest.json", {
             "dataset": dataset_id, "source": "authors", "authors_root": str(plan.root.resolve()),
@@ -533,3 +529,32 @@ def describe_authors_dataset(root: str | os.PathLike | None, splits: Any, datase
             "seg_classes": plan.seg_classes, "bev_classes": plan.bev_classes,
         })
     return Path(out_dir)
+
+
+# ----------------------------------------------------------------------------- the data source
+# ``source: authors`` (registered in compact_perception.sources): no raw records; the generate
+# stage checks the release and writes a manifest, the preprocess stage converts the release.
+def write_raw(params: Params, dataset_id: str, out_dir: Path) -> None:
+    """Check the release and write ``out_dir/manifest.json`` (:func:`describe_authors_dataset`)."""
+    dp = getattr(params.datasets, dataset_id)
+    describe_authors_dataset(dp.authors_root, dp.authors_splits, dataset_id, out_dir,
+                             resolution=params.world.resolution.at(params.scale), workers=params.world.workers)
+
+
+def draw_example(params: Params, dataset_id: str, raw_dir: Path, figure: Path) -> None:
+    """The qualitative grid of the first test frame, converted from the release as the cache holds it."""
+    from .figures_generate import save_cache_frame_figure
+
+    manifest = json.loads((Path(raw_dir) / "manifest.json").read_text())
+    fid = manifest["splits"]["test"][0]
+    frame = convert_frame(manifest["split_files"]["test"]["frames"], fid, len(manifest["seg_classes"]),
+                          len(manifest["bev_classes"]), int(manifest["resolution"]))
+    save_cache_frame_figure(dataset_id, frame, fid, figure,
+                            title=f"dataset {dataset_id}: authors' CARLA data, test frame {fid}")
+
+
+def cache(params: Params, dataset_id: str, raw_dir: Path, out_dir: Path) -> Path:
+    """Convert the release into the cache at ``out_dir`` (:func:`ingest_authors`)."""
+    dp = getattr(params.datasets, dataset_id)
+    return ingest_authors(dp.authors_root, dp.authors_splits, out_dir, dataset_id,
+                          resolution=params.world.resolution.at(params.scale), workers=params.preprocess.workers)

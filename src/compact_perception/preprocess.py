@@ -16,7 +16,9 @@ frame dict of the cache:
 
 Every input problem (missing, truncated or corrupt npz, missing key, wrong dtype or
 shape, empty split, missing manifest) raises :class:`RecordError` whose message names the
-frame id and the file.
+frame id and the file. :func:`preprocess_dataset` looks the dataset's source up
+(:mod:`compact_perception.sources`): a source that writes raw records is read here, any other
+brings its own conversion.
 """
 from __future__ import annotations
 
@@ -30,7 +32,6 @@ from typing import Any, Iterator, Mapping, Sequence
 import numpy as np
 from tqdm import tqdm
 
-from .authors import ingest_authors
 from .core.cache import write_cache
 from .core.classes import CARLA_PALETTE, palette_to_index
 from .core.config import Params, PreprocessParams
@@ -39,8 +40,10 @@ from .dvs import events_to_image
 from .core.errors import RecordError  # re-exported: ``from .preprocess import RecordError`` keeps working
 from .lidar import ls_ground_truth, topview_15l
 from .record import SPLITS, RecordSpec, load_manifest, load_record, manifest_spec, validate_record
+from .sources import data_source
 
 log = logging.getLogger(__name__)
+
 
 def preprocess_record(
     arrays: Mapping[str, np.ndarray],
@@ -133,16 +136,18 @@ def preprocess_dataset(
     cache_root: str | os.PathLike = "data/cache",
     figure_path: str | os.PathLike | None = None,
 ) -> Path:
-    """Preprocess dataset A/B/C per ``params.datasets.<id>.source`` and optionally draw the LiDAR figure."""
+    """Preprocess dataset A/B/C as its source says (:mod:`compact_perception.sources`: the raw
+    records of ``data/raw/<ds>`` by :func:`preprocess_sim`, or the source's own conversion) and
+    optionally draw the LiDAR figure."""
     ds = getattr(params.datasets, dataset_id, None)
     if ds is None or dataset_id == "nuscenes":
         raise RecordError(f"dataset {dataset_id!r}: not a simulated dataset (A, B or C); nuScenes has its own ingestion")
-    out_dir = Path(cache_root) / dataset_id
-    if ds.source in ("sim", "carla"):  # a CARLA recording is in data/raw/<ds> like the world's
-        cache = preprocess_sim(Path(raw_root) / dataset_id, out_dir, dataset_id, params.preprocess)
+    raw_dir, out_dir = Path(raw_root) / dataset_id, Path(cache_root) / dataset_id
+    source = data_source(ds.source)
+    if source.cache is None:  # data/raw/<ds> holds raw records (compact_perception.record)
+        cache = preprocess_sim(raw_dir, out_dir, dataset_id, params.preprocess)
     else:
-        cache = ingest_authors(ds.authors_root, ds.authors_splits, out_dir, dataset_id,
-                               resolution=params.world.resolution.at(params.scale), workers=params.preprocess.workers)
+        cache = source.cache(params, dataset_id, raw_dir, out_dir)
     if figure_path is not None:
         from .figures_preprocess import plot_lidar_layers
 

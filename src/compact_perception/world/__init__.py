@@ -15,8 +15,9 @@ Design
 - ``camera`` (intrinsics/extrinsics helpers, shading, semantic, CARLA log depth),
   ``events`` (DVS from log-intensity change, threshold 0.3), ``lidar_sim`` (64 lasers,
   -30..+20 deg, 32 m, (x, y, z, cos incidence) + tag), ``bev_gt`` (9 BEV masks).
-- ``generate``: :func:`render_episode` and :func:`generate_dataset`; its Fig. 1-like panel is drawn
-  by :mod:`compact_perception.figures_generate`.
+- ``generate``: :func:`render_episode` and :func:`generate_dataset`; ``source``: the world as the
+  ``sim`` data source (:mod:`compact_perception.sources`); its panel is drawn by
+  :mod:`compact_perception.figures_generate`.
 
 Raw record layout: exactly :mod:`compact_perception.record` (docs/data-formats.md): ``data/raw/<ds>/``
 with ``frames/<town>_ep<episode>_<step>.npz`` (keys ``rgb_<v>``, ``dvs_<v>``, ``sem_<v>``,
