@@ -39,11 +39,11 @@ from compact_perception.core import catalog  # noqa: E402
 from compact_perception.core.cache import read_meta  # noqa: E402
 from compact_perception.core.config import load_params  # noqa: E402
 from compact_perception.data import make_loader  # noqa: E402
-from compact_perception.plan import recipe_of  # noqa: E402
+from compact_perception.plan import planned_run  # noqa: E402
 from compact_perception.training import distributed as ddp  # noqa: E402
 from compact_perception.training.census import Census, optimizer_step_counters  # noqa: E402
 from compact_perception.training.epoch import epoch_means, train_step  # noqa: E402
-from compact_perception.training.state import RunPaths, RunSpec  # noqa: E402
+from compact_perception.training.state import RunSpec  # noqa: E402
 from compact_perception.training.train import _setup  # noqa: E402
 
 #: The compact 15L network with each study arm whose loss weighting no model's own recipe uses.
@@ -56,9 +56,9 @@ def runs() -> list[tuple[str, str | None]]:
 
 
 def build(params, model: str, arm: str | None, device: torch.device, cache: Path, out: Path):
-    spec = RunSpec(params, "A", model, recipe_of(params, model, arm), cache, RunPaths.under(out), device, ddp.Dist(),
-                   0, "census", params.train.batch_size, len(read_meta(cache)["seg_classes"]), torch.float32, None,
-                   False, False)
+    planned = planned_run(params, "A", model, 0, arm).moved(cache_dir=cache, run_dir=out)
+    spec = RunSpec(params, planned, device, ddp.Dist(), 0, "census", params.train.batch_size,
+                   len(read_meta(cache)["seg_classes"]), progress=False)
     run = _setup(spec)
     run.model.train()
     return run

@@ -24,6 +24,7 @@ then ``python -m pipeline.preprocess --dataset A --raw-root /tmp/gns/raw --cache
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import time
@@ -36,6 +37,7 @@ from compact_perception.data import make_loader, to_device
 from compact_perception.core.determinism import set_threads
 from compact_perception.metrics import class_confusion, class_iou, compute_metrics_per_sample, mean_iou
 from compact_perception.models import build_model
+from compact_perception.plan import planned_run
 from compact_perception.training.train import run_seed, seed_everything, train_run
 from compact_perception.weighting.gradnorm import GradNormWeighting
 
@@ -140,8 +142,10 @@ def main(argv: list[str] | None = None) -> int:
             steps.clear()
             log.info("training %s (%s weighting, %d epochs) into %s", MODEL, recipe.weighting, epochs, run_dir)
             t0 = time.perf_counter()
-            summary = train_run(params, args.dataset, MODEL, args.seed, cache, run_dir, recipe=recipe,
-                                recipe_key=f"diagnose.{arm}")
+            run = dataclasses.replace(planned_run(params, args.dataset, MODEL, args.seed), recipe=recipe,
+                                      recipe_key=f"diagnose.{arm}",
+                                      max_epochs=params.max_epochs_of(recipe, args.dataset))
+            summary = train_run(params, run.moved(cache_dir=cache, run_dir=run_dir))
             res = {"train_seconds": round(time.perf_counter() - t0, 1), "best_epoch": summary["best_epoch"],
                    **score(load_best(MODEL, args.dataset, run_dir), cache, n_cls)}
             if arm == "gradnorm":

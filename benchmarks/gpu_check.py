@@ -55,7 +55,8 @@ from compact_perception.data import make_loader  # noqa: E402
 from compact_perception.training import distributed as ddp  # noqa: E402
 from compact_perception.training.epoch import train_step  # noqa: E402
 from compact_perception.training.precision import cpu_has_native_bf16  # noqa: E402
-from compact_perception.training.state import RunPaths, RunSpec  # noqa: E402
+from compact_perception.plan import planned_run  # noqa: E402
+from compact_perception.training.state import RunSpec  # noqa: E402
 from compact_perception.training.train import _setup  # noqa: E402  (the loop's own setup step)
 
 PRECISIONS = ("fp32", "bf16", "fp16")
@@ -120,12 +121,10 @@ def build_run(params, model_id: str, device: torch.device, cache: Path, out: Pat
     """A run as the training loop builds it (train._setup): model, weighting, optimiser, scaler;
     ``arm``: a study arm's recipe on the model's network."""
     from compact_perception.core.cache import read_meta
-    from compact_perception.plan import recipe_of
 
-    recipe = recipe_of(params, model_id, arm)
-    spec = RunSpec(params, "A", model_id, recipe, cache, RunPaths.under(out), device, dist or ddp.Dist(), 0,
-                   "gpu-check", params.train.batch_size, len(read_meta(cache)["seg_classes"]), torch.float32, None,
-                   False, False)
+    planned = planned_run(params, "A", model_id, 0, arm).moved(cache_dir=cache, run_dir=out)
+    spec = RunSpec(params, planned, device, dist or ddp.Dist(), 0, "gpu-check", params.train.batch_size,
+                   len(read_meta(cache)["seg_classes"]), progress=False)
     run = _setup(spec)
     run.model.train()
     return run
@@ -152,7 +151,7 @@ def steps_of(run, batch: dict, steps: int) -> str:
     out = f"loss {values['loss_total']:.4g}, {moved} tensors updated"
     if run.scaler.is_enabled():
         out += f", GradScaler scale {run.scaler.get_scale():.0f} ({skipped} of {steps} steps skipped)"
-    if run.spec.recipe.weighting == "mgn":
+    if run.spec.planned.recipe.weighting == "mgn":
         w = run.weighting.w.detach().float()
         _expect(bool(torch.isfinite(w).all()), f"MGN weights not finite: {w.tolist()}")
         if run.weighting.n_updates > updates0:
@@ -192,12 +191,12 @@ INTERRUPTED_RUN = textwrap.dedent("""
     from pathlib import Path
     import pipeline  # noqa: F401  the stage package's numeric pins, as the resuming stage has them
     from compact_perception.core.config import load_params
-    from compact_perception.plan import recipe_of
+    from compact_perception.plan import planned_run
     from compact_perception.training.train import train_run
     params = load_params(sys.argv[1])
+    run = planned_run(params, "A", "compact_15l", 0).moved(cache_dir=Path(sys.argv[2]), run_dir=Path(sys.argv[3]))
     try:
-        train_run(params, "A", "compact_15l", 0, Path(sys.argv[2]), Path(sys.argv[3]),
-                  recipe=recipe_of(params, "compact_15l", None), stop_after_epochs=1, progress=False)
+        train_run(params, run, stop_after_epochs=1, progress=False)
     except InterruptedError as err:
         print("interrupted:", err)
         sys.exit(0)

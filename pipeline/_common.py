@@ -1,4 +1,4 @@
-"""Shared start-up of every stage: logging and validated params."""
+"""Shared start-up of every stage (logging and validated params) and of its worker processes (logging)."""
 from __future__ import annotations
 
 import atexit
@@ -34,8 +34,8 @@ def start(params_path: str | Path = "params.yaml", workers: tuple[str, ...] = ()
     return audited(params)
 
 
-def worker_params(params_path: str | Path) -> Params:
+def worker_logging() -> None:
     """In a stage's worker process (:mod:`compact_perception.training.parallel`): the stage's
-    logging and its validated params, read again from the same file (audited like the stage's)."""
+    logging. The worker gets the stage's validated params and its runs pickled (audited like the
+    stage's when the audit is on: core.params_audit), never a file to read again."""
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    return audited(load_params(params_path))

@@ -12,31 +12,28 @@ from __future__ import annotations
 
 import argparse
 import sys
+from functools import partial
 from pathlib import Path
-from typing import Mapping, Optional
+from typing import Mapping
 
 from compact_perception.core.cache import CacheError, read_split
 from compact_perception.core.catalog import MODELS, dataset_ids
 from compact_perception.core import io
+from compact_perception.core.config import Params
 from compact_perception.core.errors import RunError, os_error_line
 from compact_perception.core.layout import evaluation_folders, floor_paths
 from compact_perception.evaluate import evaluate_floors, evaluate_run, read_best
 from compact_perception.floor import TRIVIAL
-from compact_perception.plan import dataset_runs
+from compact_perception.plan import PlannedRun, dataset_runs
 from compact_perception.training.parallel import Job, JobError, run_jobs
 
-from ._common import start, worker_params
+from ._common import start, worker_logging
 
 
-def evaluate_one(params_path: str, dataset: str, model: str, run_dir: str, metrics_path: str, eval_dir: str,
-                 arm: Optional[str], floor: Mapping[str, float]) -> dict:
-    """Score one run's best checkpoint (in a worker process); the study's runs save no predictions."""
-    params = worker_params(params_path)
-    return evaluate_run(dataset, model, Path("data/cache") / dataset, Path(run_dir), Path(metrics_path),
-                        Path(eval_dir), device_pref=params.train.device,
-                        save_predictions=0 if arm else params.evaluate.save_predictions,
-                        num_threads=params.train.num_threads, depth_max_m=params.evaluate.depth_max_m, floor=floor,
-                        batch_size=params.evaluate.batch_size)
+def evaluate_one(params: Params, run: PlannedRun, *, floor: Mapping[str, float]) -> dict:
+    """Score one planned run's best checkpoint (in a worker process or in this one)."""
+    worker_logging()
+    return evaluate_run(params, run, floor)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -51,16 +48,14 @@ def main(argv: list[str] | None = None) -> None:
         for split in ("train", "test"):
             read_split(cache, split)
         for r in runs:  # every checkpoint exists and reads safely (its tensors mapped, not read)
-            read_best(r.dataset, r.model, r.paths.run_dir, mmap=True)
+            read_best(r, mmap=True)
         # the floor's and every run's results/ and data/eval/ folders: a read-only one stops it here
         io.check_writable(*evaluation_folders([*(floor_paths(args.dataset, t) for t in TRIVIAL.keys()),
                                                *(r.paths for r in runs)]))
-        floor = evaluate_floors(args.dataset, cache, ".",
-                                save_predictions=params.evaluate.save_predictions, num_threads=params.train.num_threads,
-                                depth_max_m=params.evaluate.depth_max_m)
-        jobs = [Job(r.name, (args.params, r.dataset, r.model, str(r.paths.run_dir), str(r.paths.metrics_path),
-                             str(r.paths.eval_dir), r.arm, floor), cost=MODELS[r.model].epoch_cost) for r in runs]
-        run_jobs(evaluate_one, jobs, params.train.parallel_runs, desc=f"evaluate {args.dataset}")
+        floor = evaluate_floors(params, args.dataset, ".")
+        jobs = [Job(r.name, r, cost=MODELS[r.model].epoch_cost) for r in runs]
+        run_jobs(partial(evaluate_one, params, floor=floor), jobs, params.train.parallel_runs,
+                 desc=f"evaluate {args.dataset}")
     except (JobError, CacheError, RunError) as err:
         sys.exit(f"error: {err}")
     except OSError as err:  # no checkpoint (its own message), a full disk, a read-only folder

@@ -13,32 +13,28 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+from functools import partial
 from pathlib import Path
-from typing import Optional
 
 from compact_perception.core.cache import CacheError
 from compact_perception.core.catalog import dataset_ids, model_ids
-from compact_perception.core.config import ParamsError
+from compact_perception.core.config import Params, ParamsError
 from compact_perception.core.errors import RunError, os_error_line
 from compact_perception.plan import PlannedRun, dataset_runs, recipe_of
 from compact_perception.training.parallel import Job, JobError, run_jobs
 from compact_perception.training.train import train_run
 from compact_perception.weighting import weighting_settings
 
-from ._common import start, worker_params
+from ._common import start, worker_logging
 
 log = logging.getLogger("pipeline.train")
 
 
-def train_one(params_path: str, dataset: str, model: str, seed: int, arm: Optional[str], cache: str, out: str,
-              progress: bool) -> dict:
-    """One run, in a worker process or in this one (``progress``: a per-step bar, for a run alone):
-    its summary's stopping facts."""
-    params = worker_params(params_path)
-    recipe = recipe_of(params, model, arm)
-    key = f"study.arms.{arm}" if arm else f"train.models.{model}"
-    summary = train_run(params, dataset, model, seed, Path(cache), Path(out), recipe=recipe, recipe_key=key,
-                        export_onnx=arm is None, progress=progress)
+def train_one(params: Params, run: PlannedRun, *, progress: bool) -> dict:
+    """One planned run, in a worker process or in this one (``progress``: a per-step bar, for a run
+    alone): its summary's stopping facts."""
+    worker_logging()
+    summary = train_run(params, run, progress=progress)
     return {k: summary.get(k) for k in ("epochs_run", "best_epoch", "stop_reason")}
 
 
@@ -52,7 +48,8 @@ def _selected(params, args) -> list[PlannedRun]:
                               f"seed {args.seed} (the seeds and arms params.yaml lists at scale {params.scale})")
     if args.out is not None and len(runs) != 1:
         raise ParamsError(f"--out: names one run's folder, but {len(runs)} runs are selected")
-    return runs
+    moved = {k: v for k, v in (("cache_dir", args.cache), ("run_dir", args.out)) if v is not None}
+    return [r.moved(**moved) for r in runs]
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -62,7 +59,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--arm", default=None, help="only this study arm's runs")
     ap.add_argument("--seed", default=None, type=int, help="only this seed's runs")
     ap.add_argument("--params", default="params.yaml")
-    ap.add_argument("--cache", type=Path, default=None, help="default data/cache/<dataset>")
+    ap.add_argument("--cache", type=Path, default=None, help="default data/cache/<dataset> (core.layout's)")
     ap.add_argument("--out", type=Path, default=None, help="one run's folder (default: core.layout's)")
     args = ap.parse_args(argv)
     params = start(args.params, workers=("train.parallel_runs", "train.num_workers"), device=True)
@@ -73,11 +70,9 @@ def main(argv: list[str] | None = None) -> None:
         for arm in params.study.arm_ids:
             weighting_settings(recipe_of(params, params.study.base_model, arm), args.params, compiled=compiled)
         runs = _selected(params, args)
-        cache = str(args.cache or Path("data/cache") / args.dataset)
         alone = len(runs) == 1
-        jobs = [Job(r.name, (args.params, r.dataset, r.model, r.seed, r.arm, cache, str(args.out or r.paths.run_dir),
-                             alone), cost=r.cost) for r in runs]
-        done = run_jobs(train_one, jobs, 1 if alone else params.train.parallel_runs, desc=f"train {args.dataset}")
+        done = run_jobs(partial(train_one, params, progress=alone), [Job(r.name, r, cost=r.cost) for r in runs],
+                        1 if alone else params.train.parallel_runs, desc=f"train {args.dataset}")
     except (JobError, RunError, CacheError, ParamsError) as err:
         sys.exit(f"error: {err}")
     except OSError as err:  # a full disk, a read-only runs/ (a run's own writes say RunError)

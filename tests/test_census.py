@@ -76,10 +76,11 @@ from compact_perception.plan import recipe_of  # noqa: E402
 from compact_perception.training import distributed as ddp  # noqa: E402
 from compact_perception.training import train as train_mod  # noqa: E402
 from compact_perception.training.epoch import EpochSums, epoch_means, train_step  # noqa: E402
-from compact_perception.training.state import RunPaths, RunSpec  # noqa: E402
+from compact_perception.training.state import RunSpec  # noqa: E402
 from compact_perception.weighting import WEIGHTINGS  # noqa: E402
 
 from repo_params import cap_epochs  # noqa: E402
+from run_fixture import run_in  # noqa: E402
 from synthetic import make_cache  # noqa: E402
 
 #: Every registered model with its own recipe, and the compact 15L network with each study arm
@@ -101,9 +102,8 @@ def _tiny(params_dict: dict, precision: str):
 def _run(params, model: str, arm, cache, out):
     from compact_perception.core.cache import read_meta
 
-    spec = RunSpec(params, "A", model, recipe_of(params, model, arm), cache, RunPaths.under(out), torch.device("cpu"),
-                   ddp.Dist(), 0, "test", params.train.batch_size, len(read_meta(cache)["seg_classes"]),
-                   torch.float32, None, False, False)
+    spec = RunSpec(params, run_in(params, model, cache, out, arm=arm), torch.device("cpu"), ddp.Dist(), 0, "test",
+                   params.train.batch_size, len(read_meta(cache)["seg_classes"]), progress=False)
     run = train_mod._setup(spec)
     run.model.train()
     loader = make_loader(cache, "train", catalog.MODELS[model].lidar_channels, params.train.batch_size, shuffle=False,

@@ -7,6 +7,7 @@ each have one answer computed here, not by the code under test.
 from __future__ import annotations
 
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -14,6 +15,7 @@ import torch
 
 from compact_perception.core.cache import write_cache
 from compact_perception.core.classes import BEV_NAMES, CARLA_NAMES
+from compact_perception.core.config import parse_params
 from compact_perception.evaluate import evaluate_floors
 from compact_perception.core.floor_rule import FLOOR_PREDICTORS
 from compact_perception.floor import TRIVIAL, FixedPredictor, fit_trivial, floor_of, margins
@@ -95,8 +97,11 @@ def test_fixed_predictor_expands_to_the_batch():
     assert p.tasks == ("de", "ls") and out["de"].shape == (3, V, 1, 2, 2) and out["ls"].shape == (3, C, 2, 2)
 
 
-def test_floor_scores_use_the_metric_code(cache, tmp_path):
-    floor = evaluate_floors("A", cache, tmp_path, save_predictions=0, depth_max_m=80.0, num_threads=1)
+def test_floor_scores_use_the_metric_code(cache, tmp_path, params_dict):
+    shutil.copytree(cache, tmp_path / "data" / "cache" / "A")  # where the evaluate stage reads it (core.layout)
+    params_dict["evaluate"].update(save_predictions=0, depth_max_m=80)
+    params_dict["train"]["num_threads"] = 1
+    floor = evaluate_floors(parse_params(params_dict), "A", tmp_path)
     res = json.loads((tmp_path / "results" / "A" / "floor_pixel" / "metrics.json").read_text())
     # MAE by hand: depth 0.5 everywhere, but test frame 2's pixel (0,0,0) of view f is 0.25 -> |0.5-0.25|
     n_px = V * S * S

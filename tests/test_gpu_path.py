@@ -29,10 +29,11 @@ from compact_perception.plan import recipe_of
 from compact_perception.training import distributed as ddp
 from compact_perception.training import train as train_mod
 from compact_perception.training.epoch import NonFinite, train_step
-from compact_perception.training.state import RunPaths, RunSpec
+from compact_perception.training.state import RunSpec
 from compact_perception.weighting import WEIGHTINGS, MGNWeighting, GradNormWeighting, weighting_settings
 
 from repo_params import cap_epochs
+from run_fixture import run_in
 from synthetic import make_cache
 
 SIZE = 16
@@ -48,9 +49,8 @@ def build(params, model: str, cache: Path, out: Path, arm: str | None = None, di
     """A run as the training loop's setup step builds it."""
     from compact_perception.core.cache import read_meta
 
-    spec = RunSpec(params, "A", model, recipe_of(params, model, arm), cache, RunPaths.under(out), torch.device("cpu"),
-                   dist or ddp.Dist(), 0, "test", params.train.batch_size, len(read_meta(cache)["seg_classes"]),
-                   torch.float32, None, False, False)
+    spec = RunSpec(params, run_in(params, model, cache, out, arm=arm), torch.device("cpu"), dist or ddp.Dist(), 0,
+                   "test", params.train.batch_size, len(read_meta(cache)["seg_classes"]), progress=False)
     run = train_mod._setup(spec)
     run.model.train()
     return run
@@ -84,12 +84,12 @@ def test_a_checkpoint_mapped_to_another_device_resumes(tmp_path, params_dict, mo
     params = tiny(params_dict)
     cache = make_cache(tmp_path / "cache", size=SIZE)
     with pytest.raises(InterruptedError):
-        train_mod.train_run(params, "A", "compact_1l", 0, cache, tmp_path / "run", stop_after_epochs=1,
-                            export_onnx=False)
+        train_mod.train_run(params, run_in(params, "compact_1l", cache, tmp_path / "run", export_onnx=False),
+                            stop_after_epochs=1)
     saved = torch.load(tmp_path / "run" / "last.pt", weights_only=True)
     specs = []
     monkeypatch.setattr(train_mod, "_train", lambda spec: specs.append(spec) or {})
-    train_mod.train_run(params, "A", "compact_1l", 0, cache, tmp_path / "run", export_onnx=False)
+    train_mod.train_run(params, run_in(params, "compact_1l", cache, tmp_path / "run", export_onnx=False))
     run = train_mod._setup(specs[0])
     run.spec = dataclasses.replace(specs[0], device=torch.device("meta"))
     assert train_mod._resume(run) is None
@@ -105,14 +105,14 @@ def test_last_checkpoint_holds_the_scaler_and_refuses_another_precision(tmp_path
     params = tiny(params_dict, precision="fp16")
     cache = make_cache(tmp_path / "cache", size=SIZE)
     with pytest.raises(InterruptedError):
-        train_mod.train_run(params, "A", "compact_1l", 0, cache, tmp_path / "run", stop_after_epochs=1,
-                            export_onnx=False)
+        train_mod.train_run(params, run_in(params, "compact_1l", cache, tmp_path / "run", export_onnx=False),
+                            stop_after_epochs=1)
     saved = torch.load(tmp_path / "run" / "last.pt", weights_only=True)
     assert saved["precision"] == "fp16" and saved["device"] == "cpu" and saved["cuda_rng"] is None
     assert saved["scaler"]["scale"] > 0
     specs = []
     monkeypatch.setattr(train_mod, "_train", lambda spec: specs.append(spec) or {})
-    train_mod.train_run(params, "A", "compact_1l", 0, cache, tmp_path / "run", export_onnx=False)
+    train_mod.train_run(params, run_in(params, "compact_1l", cache, tmp_path / "run", export_onnx=False))
     run = train_mod._setup(specs[0])
     run.scaler = torch.amp.GradScaler("cpu", init_scale=8.0)  # another scale: the checkpoint's must come back
     assert train_mod._resume(run) is None

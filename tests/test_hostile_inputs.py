@@ -161,7 +161,7 @@ def test_every_worker_count_is_bounded_by_the_usable_cores(tmp_path, monkeypatch
     for module in (parallel, gen, preprocess, authors, ingest):
         monkeypatch.setattr(module.mp, "get_context", _refusing_context(sizes))
     with pytest.raises(_Refused):
-        parallel.run_jobs(len, [parallel.Job(str(i), ("ab",)) for i in range(5)], 64, desc="five jobs")
+        parallel.run_jobs(len, [parallel.Job(str(i), "ab") for i in range(5)], 64, desc="five jobs")
     d = repo_params_dict()
     d["world"]["workers"] = 8
     d["preprocess"]["workers"] = 8
@@ -182,6 +182,7 @@ def test_every_worker_count_is_bounded_by_the_usable_cores(tmp_path, monkeypatch
 def test_a_training_runs_loader_workers_are_bounded_by_the_usable_cores(tmp_path, monkeypatch, two_cores):
     from compact_perception.training import train as train_mod
     from repo_params import cap_epochs
+    from run_fixture import run_in
     from synthetic import make_cache
 
     asked: list[int] = []
@@ -194,10 +195,11 @@ def test_a_training_runs_loader_workers_are_bounded_by_the_usable_cores(tmp_path
     d = repo_params_dict()
     cap_epochs(d, 1)
     d["train"].update(num_workers=8, device="cpu", batch_size=2)
+    params = parse_params(d)
+    run = run_in(params, "compact_1l", make_cache(tmp_path / "cache", size=32, counts=(4, 2, 2)), tmp_path / "run",
+                 export_onnx=False)
     with pytest.raises(_Refused):
-        train_mod.train_run(parse_params(d), "A", "compact_1l", 0, make_cache(tmp_path / "cache", size=32,
-                                                                              counts=(4, 2, 2)), tmp_path / "run",
-                            export_onnx=False, progress=False)
+        train_mod.train_run(params, run, progress=False)
     assert asked == [2]
 
 

@@ -450,14 +450,16 @@ def test_class_counts_accumulate_over_frames() -> None:
     assert set(out["bevp"]["classes"]) == {"0", "1", "2", "3"} and "definition" in out
 
 
-def test_evaluate_run_writes_paper_mv_and_field_metrics(tmp_path) -> None:
+def test_evaluate_run_writes_paper_mv_and_field_metrics(tmp_path, params_dict) -> None:
     """The real evaluation on a tiny synthetic cache with an untrained model."""
     import json
 
     import pandas as pd
 
+    from compact_perception.core.config import parse_params
     from compact_perception.evaluate import evaluate_run
     from compact_perception.models import build_model
+    from run_fixture import run_in
     from synthetic import make_cache
 
     cache = make_cache(tmp_path / "cache" / "A", size=32, counts=(1, 1, 3))
@@ -467,8 +469,10 @@ def test_evaluate_run_writes_paper_mv_and_field_metrics(tmp_path) -> None:
     run.mkdir()
     torch.save({"model": model.state_dict(), "epoch": 0}, run / "best.pt")
     out = tmp_path / "metrics.json"
-    evaluate_run("A", "compact_15l", cache, run, out, tmp_path / "eval", device_pref="cpu", save_predictions=1,
-                 num_threads=1, depth_max_m=80.0)
+    params_dict["evaluate"].update(save_predictions=1, depth_max_m=80)
+    params_dict["train"].update(device="cpu", num_threads=1)
+    params = parse_params(params_dict)
+    evaluate_run(params, run_in(params, "compact_15l", cache, run, metrics_path=out, eval_dir=tmp_path / "eval"))
     m = json.loads(out.read_text())
     pf = pd.read_csv(tmp_path / "eval" / "per_frame.csv")
     means = {c: float(pf[c].mean()) for c in TASK_COLUMNS}

@@ -1,16 +1,23 @@
 """Runs side by side (training/parallel.py): the pool returns results in job order, starts the
-longest jobs first, stops at the first failing job with its one-line error, and a run trained in a
-worker process after another run has the same bytes as the same run trained alone."""
+longest jobs first, stops at the first failing job with its one-line error, hands the stage's
+params and planned runs to its spawned workers whole, and a run trained in a worker process after
+another run has the same bytes as the same run trained alone."""
 from __future__ import annotations
 
+import os
+import pickle
+from functools import partial
 from pathlib import Path
 
 import pytest
 import yaml
 
+from compact_perception.core.config import parse_params
+from compact_perception.plan import dataset_runs
 from compact_perception.training.parallel import Job, JobError, run_jobs
 
 from repo_params import cap_epochs, repo_params_dict
+from run_fixture import run_in
 from synthetic import make_cache
 
 
@@ -25,13 +32,13 @@ def _fail_on(x: int) -> int:
 
 
 def test_results_come_back_in_job_order_whatever_the_pool():
-    jobs = [Job(f"j{i}", (i,), cost=c) for i, c in enumerate((1.0, 5.0, 2.0, 5.0))]
+    jobs = [Job(f"j{i}", i, cost=c) for i, c in enumerate((1.0, 5.0, 2.0, 5.0))]
     assert run_jobs(_square, jobs, 1, desc="t") == [0, 1, 4, 9]
     assert run_jobs(_square, jobs, 2, desc="t") == [0, 1, 4, 9]
 
 
 def test_the_first_failure_is_the_stage_error(caplog):
-    jobs = [Job(f"A/m/seed{i}", (i,)) for i in range(5)]
+    jobs = [Job(f"A/m/seed{i}", i) for i in range(5)]
     with pytest.raises(JobError, match=r"^runs/A/m/seed3/last\.pt: unreadable checkpoint$"):
         run_jobs(_fail_on, jobs, 1, desc="t")
     assert "A/m/seed3 failed" in caplog.text
@@ -42,7 +49,7 @@ def test_longest_first_keeps_the_order_of_equal_costs(monkeypatch):
     from compact_perception.training import parallel
 
     monkeypatch.setattr(parallel, "_call", lambda fn, job: (seen.append(job.name) or (job.name, None, None)))
-    run_jobs(_square, [Job("a", (1,), 1.0), Job("b", (1,), 3.0), Job("c", (1,), 1.0), Job("d", (1,), 3.0)], 1, "t")
+    run_jobs(_square, [Job("a", 1, 1.0), Job("b", 1, 3.0), Job("c", 1, 1.0), Job("d", 1, 3.0)], 1, "t")
     assert seen == ["b", "d", "a", "c"]
 
 
@@ -69,6 +76,29 @@ def test_a_stage_starts_its_costliest_runs_first(tmp_path, monkeypatch):
     assert max(cost, key=cost.get) == "B/gradnorm_segnet/seed0"
 
 
+def _what_a_worker_gets(params, run) -> tuple:
+    """What a worker process reads of the stage's params and of its planned run."""
+    return (os.getpid(), pickle.dumps(params), run, params.max_epochs_of(run.recipe, run.dataset),
+            run.recipe.key_of("lr"), params.dataset(run.dataset).training.seeds.at(params.scale))
+
+
+def test_the_stage_params_and_runs_reach_spawned_workers_whole():
+    """A stage hands its validated params (``Scaled`` values included: a parametrised pydantic
+    class pickles by its type argument) and each planned run to spawned worker processes; there
+    they are what the stage has, down to where each recipe value is written (the params audit)."""
+    d = repo_params_dict()
+    d["study"]["datasets"]["default"] = ["A"]
+    params = parse_params(d)
+    runs = [r for r in dataset_runs(params, "A") if r.seed == 0 and r.model in ("compact_15l_mgn", "compact_15l")]
+    assert {r.arm for r in runs} >= {None, "gradnorm"}
+    here = [_what_a_worker_gets(params, r) for r in runs]
+    pooled = run_jobs(partial(_what_a_worker_gets, params), [Job(r.name, r) for r in runs], 2, desc="spawn")
+    assert os.getpid() not in {p[0] for p in pooled}                # computed in the spawned workers
+    assert pickle.loads(pooled[0][1]) == params
+    assert [p[2:] for p in pooled] == [h[2:] for h in here]
+    assert pooled[0][2].recipe.key == "train.models.compact_15l" and pooled[0][2].paths == runs[0].paths
+
+
 @pytest.mark.slow
 def test_a_run_in_a_pool_has_the_bytes_of_the_run_alone(tmp_path):
     """compact_1l seed 0 trained alone in this process, and in a pool of two worker processes after
@@ -79,16 +109,15 @@ def test_a_run_in_a_pool_has_the_bytes_of_the_run_alone(tmp_path):
 
     d = cap_epochs(repo_params_dict(), 2)
     d["train"].update(batch_size=2, num_workers=0, device="cpu")
-    params = tmp_path / "params.yaml"
-    params.write_text(yaml.safe_dump(d))
-    cache = str(make_cache(tmp_path / "cache", size=16, counts=(4, 2, 2)))
+    params = parse_params(d)
+    cache = make_cache(tmp_path / "cache", size=16, counts=(4, 2, 2))
     alone = tmp_path / "alone"
-    train_one(str(params), "A", "compact_1l", 0, None, cache, str(alone), True)
+    train_one(params, run_in(params, "compact_1l", cache, alone), progress=True)
     pooled = tmp_path / "pooled"
-    jobs = [Job("chen", (str(params), "A", "chen_bev", 0, None, cache, str(tmp_path / "chen"), False), cost=2.0),
-            Job("1l", (str(params), "A", "compact_1l", 0, None, cache, str(pooled), False), cost=1.0),
-            Job("15l", (str(params), "A", "compact_15l", 0, None, cache, str(tmp_path / "15l"), False), cost=1.0)]
-    facts = run_jobs(train_one, jobs, 2, desc="pool")
+    jobs = [Job("chen", run_in(params, "chen_bev", cache, tmp_path / "chen"), cost=2.0),
+            Job("1l", run_in(params, "compact_1l", cache, pooled), cost=1.0),
+            Job("15l", run_in(params, "compact_15l", cache, tmp_path / "15l"), cost=1.0)]
+    facts = run_jobs(partial(train_one, params, progress=False), jobs, 2, desc="pool")
     assert [f["stop_reason"] for f in facts] == ["max_epochs"] * 3
     assert (pooled / "best.pt").read_bytes() == (alone / "best.pt").read_bytes()
     last = [torch.load(Path(p) / "last.pt", weights_only=True)["model"] for p in (alone, pooled)]

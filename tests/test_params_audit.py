@@ -2,8 +2,13 @@
 keys a merged recipe inherits (dvc.yaml must list ``train.recipe`` beside ``train.models.<id>``)."""
 from __future__ import annotations
 
+import json
+from functools import partial
+
 from compact_perception.core.config import parse_params
-from compact_perception.core.params_audit import ParamsView, _Log, leaf_keys
+from compact_perception.core.params_audit import ENV_VAR, ParamsView, _Log, leaf_keys
+from compact_perception.plan import planned_run
+from compact_perception.training.parallel import Job, run_jobs
 
 
 def _view(params_dict: dict) -> tuple[ParamsView, _Log]:
@@ -36,3 +41,24 @@ def test_a_method_runs_on_the_view(params_dict):
     assert keys == {"study.arms", "study.base_model", "train.models", "train.recipe"}
     assert "study.arms.uw" in {".".join(k.split(".")[:3]) for k in log.keys}
     assert "train.recipe.lr" in log.keys and "study.arms.dwa" not in log.keys
+
+
+def _worker_reads(params, run) -> float:
+    """What a stage's worker reads: a setting of the params and a value of the run's recipe."""
+    return params.train.num_threads * run.recipe.lr
+
+
+def test_a_workers_reads_are_recorded_in_its_own_line(params_dict, tmp_path, monkeypatch):
+    """The stage hands its (audited) params and planned runs to spawned worker processes pickled;
+    each worker records what it reads, recipe keys included, and appends its line at exit."""
+    target = tmp_path / "audit.jsonl"
+    monkeypatch.setenv(ENV_VAR, str(target))  # inherited by the workers
+    view, log = _view(params_dict)
+    runs = [planned_run(view, "A", m, 0) for m in ("compact_15l_mgn", "compact_1l")]
+    assert run_jobs(partial(_worker_reads, view), [Job(r.name, r) for r in runs], 2, desc="audit") == \
+        [view.train.num_threads * r.recipe.lr for r in runs]
+    lines = [json.loads(line) for line in target.read_text().splitlines()]
+    worker_keys = set().union(*(line["keys"] for line in lines))
+    assert {"train.num_threads", "train.models.compact_15l_mgn.lr", "train.models.compact_1l.lr",
+            "train.recipe.lr"} <= worker_keys
+    assert all(k.startswith(("train.num_threads", "train.models.", "train.recipe.")) for k in worker_keys)

@@ -26,6 +26,7 @@ from compact_perception.core.errors import RunError
 
 import authors_fixture as fx
 from repo_params import cap_epochs, repo_params_dict
+from run_fixture import run_in
 from synthetic import make_cache
 from test_authors import copy, release, stage_error, write_params  # noqa: F401 (fixtures)
 from test_errors import _eval_tree, _exit_message, _files
@@ -135,8 +136,8 @@ def test_truncated_last_pt_of_a_finished_run_is_an_error_and_deletes_nothing(tmp
     from compact_perception.training.train import train_run
 
     d = _tiny(repo_params_dict(), epochs=1)
-    run = tmp_path / "run"
-    train_run(parse_params(d), "A", MODEL, 0, cache, run)
+    run, params = tmp_path / "run", parse_params(d)
+    train_run(params, run_in(params, MODEL, cache, run))
     last = run / "last.pt"
     last.write_bytes(last.read_bytes()[: last.stat().st_size // 2])
     before = _snapshot(run)
@@ -181,14 +182,14 @@ def test_a_nan_loss_keeps_the_last_good_epoch_resumable(tmp_path, cache, monkeyp
     monkeypatch.setattr(epoch_mod, "set_epoch", set_epoch)
     monkeypatch.setattr(epoch_mod, "scale_de_loss", poisoned)
     with pytest.raises(RunError) as exc:
-        train_run(params, "A", MODEL, 0, cache, run, export_onnx=False)
+        train_run(params, run_in(params, MODEL, cache, run, export_onnx=False))
     assert str(exc.value) == f"{run}: epoch 2: non-finite de loss (nan)"
     assert torch.load(run / "last.pt", weights_only=True)["epoch"] == 0
     assert (run / "best.pt").is_file() and not (run / "summary.json").exists()
     logged = (run / "live" / "plots" / "metrics" / "lr.tsv").read_text().split()[2::2]
     assert logged == ["0"]
     monkeypatch.undo()
-    assert train_run(params, "A", MODEL, 0, cache, run, export_onnx=False)["epochs_run"] == 2
+    assert train_run(params, run_in(params, MODEL, cache, run, export_onnx=False))["epochs_run"] == 2
 
 
 @pytest.mark.parametrize("text", [".inf", ".nan", "-.inf"])
@@ -245,13 +246,13 @@ def test_a_run_resumed_after_a_kill_inside_a_save_leaves_no_temporary(tmp_path, 
 
     params, run = parse_params(_tiny(repo_params_dict())), tmp_path / "run"
     with pytest.raises(InterruptedError):
-        train_run(params, "A", MODEL, 0, cache, run, stop_after_epochs=1, export_onnx=False)
+        train_run(params, run_in(params, MODEL, cache, run, export_onnx=False), stop_after_epochs=1)
     code = ("import os, sys; from compact_perception.core import io\n"
             "with io.atomic_path(sys.argv[1]) as tmp:\n    os.kill(os.getpid(), 9)\n")
     proc = subprocess.run([sys.executable, "-c", code, str(run / "best.pt")], capture_output=True)
     assert proc.returncode == -9
     assert len(list(run.glob(".best.pt.*.tmp"))) == 1
-    assert train_run(params, "A", MODEL, 0, cache, run, export_onnx=False)["epochs_run"] == 2
+    assert train_run(params, run_in(params, MODEL, cache, run, export_onnx=False))["epochs_run"] == 2
     assert not [p for p in run.rglob("*") if p.name.endswith(".tmp")]
 
 
@@ -493,7 +494,8 @@ def test_no_checkpoint_error_advises_an_unsafe_load(tmp_path, reader):
 
     marker = tmp_path / "marker"
     path = _crafted(tmp_path / "best.pt", marker, digest="d", epoch=0)
-    call = {"read_best": lambda: read_best("A", MODEL, tmp_path),
+    params = parse_params(repo_params_dict())
+    call = {"read_best": lambda: read_best(run_in(params, MODEL, tmp_path, tmp_path)),
             "read_checkpoint": lambda: checkpoint.read_checkpoint(path),
             "load_resumable": lambda: checkpoint.load_resumable(path, "d"),
             "mark_finished": lambda: checkpoint.mark_finished(path)}[reader]

@@ -19,9 +19,11 @@ import yaml
 from compact_perception.training import provenance
 from compact_perception.core.config import parse_params
 from compact_perception.evaluate import evaluate_run
+from compact_perception.plan import planned_run
 from compact_perception.training.train import train_run
 
 from repo_params import cap_epochs
+from run_fixture import run_in
 from synthetic import make_cache
 
 MODEL = "compact_15l_mgn"  # dropout, MGN weights and momentum: every stateful part of a run
@@ -36,12 +38,14 @@ def _params(params_dict: dict, *, epochs: int = 3, workers: int = 2):
     return parse_params(params_dict)
 
 
+def _train(params, cache: Path, run: Path, **kwargs) -> dict:
+    return train_run(params, run_in(params, MODEL, cache, run), **kwargs)
+
+
 def _score(params, cache: Path, run: Path) -> bytes:
-    out = run.parent / f"{run.name}-metrics.json"
-    evaluate_run("A", MODEL, cache, run, out, run.parent / f"{run.name}-eval", device_pref="cpu",
-                 save_predictions=1, num_threads=params.train.num_threads,
-                 depth_max_m=params.evaluate.depth_max_m)
-    return out.read_bytes()
+    planned = run_in(params, MODEL, cache, run)
+    evaluate_run(params, planned)
+    return planned.paths.metrics_path.read_bytes()
 
 
 @pytest.fixture(scope="module")
@@ -55,14 +59,14 @@ def reference(tmp_path_factory, cache) -> tuple[bytes, dict, bytes]:
     with (Path(__file__).resolve().parents[1] / "params.yaml").open() as fh:
         params = _params(yaml.safe_load(fh))
     run = tmp_path_factory.mktemp("ref") / "run"
-    summary = train_run(params, "A", MODEL, 0, cache, run)
+    summary = _train(params, cache, run)
     return _score(params, cache, run), summary, (run / "best.pt").read_bytes()
 
 
 @pytest.mark.slow
 def test_worker_count_does_not_change_the_result(tmp_path, params_dict, cache, reference):
     params = _params(params_dict, workers=0)
-    summary = train_run(params, "A", MODEL, 0, cache, tmp_path / "run")
+    summary = _train(params, cache, tmp_path / "run")
     assert summary["best_val_score"] == reference[1]["best_val_score"]
     assert _score(params, cache, tmp_path / "run") == reference[0]
     # the checkpoint too, byte for byte (written under another random temporary name)
@@ -75,8 +79,8 @@ def test_interrupted_run_resumes_to_the_same_bytes(tmp_path, params_dict, cache,
     params = _params(params_dict)  # num_workers 2, the default
     run = tmp_path / "run"
     with pytest.raises(InterruptedError):
-        train_run(params, "A", MODEL, 0, cache, run, stop_after_epochs=cut_after)
-    resumed = train_run(params, "A", MODEL, 0, cache, run)
+        _train(params, cache, run, stop_after_epochs=cut_after)
+    resumed = _train(params, cache, run)
     assert resumed["final_weights"] == reference[1]["final_weights"]
     assert _score(params, cache, run) == reference[0]
     steps = (run / "live" / "plots" / "metrics" / "val_score.tsv").read_text().splitlines()[1:]
@@ -108,13 +112,13 @@ def test_sigkill_mid_run_resumes_to_the_same_bytes(tmp_path, params_dict, cache,
 def test_a_finished_run_of_other_code_is_retrained(tmp_path, params_dict, cache, monkeypatch, caplog):
     """The in-stage shortcut ('already complete') never outlives a change of code."""
     params = _params(params_dict, epochs=1, workers=0)
-    first = train_run(params, "A", MODEL, 0, cache, tmp_path / "run")
-    again = train_run(params, "A", MODEL, 0, cache, tmp_path / "run")
+    first = _train(params, cache, tmp_path / "run")
+    again = _train(params, cache, tmp_path / "run")
     assert again == first  # same code, params and data: the finished run stands
     monkeypatch.setattr(provenance, "source_fingerprint", lambda: "other code")
     monkeypatch.setattr("compact_perception.training.train.source_fingerprint", lambda: "other code")
     with caplog.at_level("INFO"):
-        rerun = train_run(params, "A", MODEL, 0, cache, tmp_path / "run")
+        rerun = _train(params, cache, tmp_path / "run")
     assert rerun["digest"] != first["digest"]
     assert "of other code, params or data" in caplog.text
 
@@ -123,8 +127,11 @@ def test_digest_covers_every_result_changing_train_param(params_dict):
     """Every train param but the worker count and device moves the digest."""
     from compact_perception.training.train import run_digest
 
+    def digest(params, data: str = "data") -> str:
+        return run_digest(params, planned_run(params, "A", MODEL, 0), 1, data, 1)
+
     base = parse_params(params_dict)
-    d0 = run_digest(base, "A", MODEL, 1, "data", 1)
+    d0 = digest(base)
     changes = {
         ("num_threads",): 2, ("precision",): "bf16", ("channels_last",): False, ("compile",): True, ("deterministic",): False, ("tf32",): True, ("batch_size",): 3, ("plateau_patience",): 7,
         ("early_stop_patience", "default"): 9, ("models", MODEL, "lr"): 0.05, ("models", MODEL, "momentum"): 0.5,
@@ -135,21 +142,21 @@ def test_digest_covers_every_result_changing_train_param(params_dict):
         for key in path[:-1]:
             node = node[key]
         node[path[-1]] = value
-        assert run_digest(parse_params(d), "A", MODEL, 1, "data", 1) != d0, path
+        assert digest(parse_params(d)) != d0, path
     d = yaml.safe_load(yaml.safe_dump(params_dict))
     d["train"]["num_workers"] = 2
     d["train"]["parallel_runs"] = 1
-    assert run_digest(parse_params(d), "A", MODEL, 1, "data", 1) == d0
+    assert digest(parse_params(d)) == d0
     cap = d["datasets"]["A"]["training"]["max_epochs"]
     cap["default"] = cap["default"] + 1     # the run's cap is part of its result
-    assert run_digest(parse_params(d), "A", MODEL, 1, "data", 1) != d0
-    assert run_digest(base, "A", MODEL, 1, "other data", 1) != d0
+    assert digest(parse_params(d)) != d0
+    assert digest(base, "other data") != d0
     # the base recipe counts through the run's merged recipe: a base key the model inherits moves the
     # digest, one the model sets itself does not
     for key, value, moves in (("lr_min", 1.0e-6, True), ("weighting", "none", False)):
         d = yaml.safe_load(yaml.safe_dump(params_dict))
         d["train"]["recipe"][key] = value
-        assert (run_digest(parse_params(d), "A", MODEL, 1, "data", 1) != d0) is moves, key
+        assert (digest(parse_params(d)) != d0) is moves, key
 
 
 @pytest.mark.slow

@@ -15,6 +15,7 @@ from compact_perception.schedule import EarlyStop, Plateau
 from compact_perception.training.train import selection_score, train_run
 
 from repo_params import cap_epochs
+from run_fixture import run_in
 from synthetic import make_cache
 
 
@@ -136,8 +137,8 @@ def test_a_run_stops_when_validation_stops_improving(tmp_path, params_dict, monk
     params_dict["train"]["early_stop_patience"] = {"default": 3, "full": 3, "paper": 3}
     params = tiny_params(params_dict, epochs=6)
     _scripted_validation(monkeypatch, scores)
-    summary = train_run(params, "A", "compact_1l", 0, make_cache(tmp_path / "cache", size=16), tmp_path / "run",
-                        export_onnx=False)
+    run = run_in(params, "compact_1l", make_cache(tmp_path / "cache", size=16), tmp_path / "run", export_onnx=False)
+    summary = train_run(params, run)
     assert (summary["epochs_run"], summary["best_epoch"], summary["stop_reason"]) == (epochs_run, best_epoch, reason)
     assert summary["max_epochs"] == 6
     assert torch.load(tmp_path / "run" / "best.pt", weights_only=True)["epoch"] == best_epoch
@@ -153,12 +154,12 @@ def test_selection_score_is_tm_for_four_tasks():
 def test_interrupted_run_resumes_to_the_same_result(tmp_path, params_dict):
     params = tiny_params(params_dict, epochs=3)
     cache = make_cache(tmp_path / "cache")
-    full = train_run(params, "A", "compact_15l_mgn", 0, cache, tmp_path / "full")
+    full = train_run(params, run_in(params, "compact_15l_mgn", cache, tmp_path / "full"))
     with pytest.raises(InterruptedError):
-        train_run(params, "A", "compact_15l_mgn", 0, cache, tmp_path / "cut", stop_after_epochs=1)
+        train_run(params, run_in(params, "compact_15l_mgn", cache, tmp_path / "cut"), stop_after_epochs=1)
     assert not (tmp_path / "cut" / "summary.json").exists()
     assert torch.load(tmp_path / "cut" / "last.pt", weights_only=True)["epoch"] == 0
-    resumed = train_run(params, "A", "compact_15l_mgn", 0, cache, tmp_path / "cut")
+    resumed = train_run(params, run_in(params, "compact_15l_mgn", cache, tmp_path / "cut"))
     assert resumed["epochs_run"] == full["epochs_run"] == 3
     assert resumed["untrained_val_score"] == pytest.approx(full["untrained_val_score"], abs=1e-9)
     assert 0.0 < full["untrained_val_score"] < 4.0  # TM of the Kaiming-initialised network, recorded once
@@ -170,7 +171,7 @@ def test_interrupted_run_resumes_to_the_same_result(tmp_path, params_dict):
     for name in ("train/loss_de", "train/loss_bevp", "val/iou_ss", "val/mae_de", "lr", "w_de"):
         assert (tmp_path / "cut" / "live" / "plots" / "metrics" / f"{name}.tsv").is_file(), name
     # a completed run with the same configuration is not retrained
-    again = train_run(params, "A", "compact_15l_mgn", 0, cache, tmp_path / "cut")
+    again = train_run(params, run_in(params, "compact_15l_mgn", cache, tmp_path / "cut"))
     assert again["train_seconds"] == resumed["train_seconds"]
 
 
@@ -224,12 +225,13 @@ def test_single_task_arm_trains_and_scores_a_one_task_network(tmp_path, params_d
     assert network_tasks(params.study_recipe("uw"), ("de", "ss", "ls", "bevp")) == ("de", "ss", "ls", "bevp")
     cache = make_cache(tmp_path / "cache")
     run = tmp_path / "run"
-    summary = train_run(params, "A", "compact_15l", 0, cache, run, recipe=recipe, recipe_key="study.arms.single_ls",
-                        export_onnx=False)
+    planned = run_in(params, "compact_15l", cache, run, arm="single_ls")
+    assert planned.recipe == recipe and planned.recipe_key == "study.arms.single_ls" and not planned.export_onnx
+    summary = train_run(params, planned)
     best = torch.load(run / "best.pt", weights_only=True)
     assert best["tasks"] == ["ls"] and not any(k.startswith(("dec_de", "dec_bevp", "enc_ss")) for k in best["model"])
     assert summary["final_weights"] == {"w_ls": 1.0}
     assert not (run / "model.onnx").exists()
-    result = evaluate_run("A", "compact_15l", cache, run, tmp_path / "metrics.json", tmp_path / "eval",
-                          device_pref="cpu", save_predictions=1, num_threads=1, depth_max_m=80.0)
+    result = evaluate_run(params, planned)
     assert "iou_ls" in result and not {"mae_de", "iou_ss", "iou_bevp", "tm"} & set(result)
+    assert result == json.loads(planned.paths.metrics_path.read_text())

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import logging
 import pickle
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping
 
@@ -28,8 +29,9 @@ from tqdm.auto import tqdm
 
 from .core import catalog, io
 from .core.cache import read_meta, read_split
+from .core.config import Params
 from .core.errors import RunError, checkpoint_load_reason
-from .core.layout import floor_paths
+from .core.layout import RunPaths, floor_paths
 from .core.depth import DEPTH_FAR_M, DEPTH_LOG_K
 from .data import make_loader, to_device
 from .core.determinism import resolve_device, set_threads
@@ -38,6 +40,7 @@ from .metrics import (DEPTH_CONVENTION, DEPTH_METRICS, DEPTH_NEAR_M, MV_DEFINITI
                       ARGMAX_TASKS, iou_argmax_per_sample)
 from .floor import TRIVIAL, fit_trivial, floor_of, margins
 from .models import build_model
+from .plan import PlannedRun
 
 log = logging.getLogger(__name__)
 
@@ -178,33 +181,32 @@ def _compact_prediction(task: str, pred: torch.Tensor) -> np.ndarray:
     return (p > 0.5).numpy().astype(np.uint8)
 
 
-def read_best(dataset_id: str, model_id: str, run_dir: Path, *, mmap: bool = False) -> dict:
-    """``run_dir/best.pt`` read with ``weights_only=True`` (tensors and plain containers only, so a
+def read_best(run: PlannedRun, *, mmap: bool = False) -> dict:
+    """The run's ``best.pt`` read with ``weights_only=True`` (tensors and plain containers only, so a
     crafted file cannot run code: ``runs/`` can come from a shared DVC cache). FileNotFoundError
     naming it where the run wrote none; RunError where it is not a checkpoint. ``mmap``: the
     tensors stay memory-mapped, unread (a check of the file before the work, not a load)."""
-    best = Path(run_dir) / "best.pt"
+    best, what = run.paths.best, f"{run.model} on {run.dataset}"
     if not best.is_file():
-        raise FileNotFoundError(f"{best}: no best checkpoint; has the training of {dataset_id}/{model_id} finished?")
+        raise FileNotFoundError(f"{best}: no best checkpoint; has the training of {run.dataset}/{run.model} finished?")
     try:
         checkpoint = torch.load(best, map_location="cpu", weights_only=True, mmap=mmap)
     except (RuntimeError, ValueError, AttributeError, pickle.UnpicklingError, EOFError) as err:
-        raise RunError(f"{best}: not a checkpoint of {model_id} on {dataset_id} "
-                       f"({checkpoint_load_reason(err)})") from None
+        raise RunError(f"{best}: not a checkpoint of {what} ({checkpoint_load_reason(err)})") from None
     if not isinstance(checkpoint, dict) or "model" not in checkpoint:
-        raise RunError(f"{best}: not a checkpoint of {model_id} on {dataset_id} (no 'model' state)")
+        raise RunError(f"{best}: not a checkpoint of {what} (no 'model' state)")
     return checkpoint
 
 
-def load_trained(dataset_id: str, model_id: str, run_dir: Path) -> tuple[torch.nn.Module, int]:
-    """The network of ``run_dir/best.pt`` (:func:`read_best`; built for the tasks it was trained
+def load_trained(run: PlannedRun) -> tuple[torch.nn.Module, int]:
+    """The network of the run's ``best.pt`` (:func:`read_best`; built for the tasks it was trained
     for), in eval mode, and the epoch it was saved at."""
-    checkpoint = read_best(dataset_id, model_id, run_dir)
+    checkpoint = read_best(run)
     try:
-        model = build_model(model_id, dataset_id, checkpoint.get("tasks"))  # the tasks it was trained for
+        model = build_model(run.model, run.dataset, checkpoint.get("tasks"))  # the tasks it was trained for
         model.load_state_dict(checkpoint["model"])
     except (RuntimeError, KeyError, ValueError) as err:
-        raise RunError(f"{Path(run_dir) / 'best.pt'}: not a checkpoint of {model_id} on {dataset_id} "
+        raise RunError(f"{run.paths.best}: not a checkpoint of {run.model} on {run.dataset} "
                        f"({' '.join(str(err).split())[:200]})") from None
     return model.eval(), int(checkpoint.get("epoch", -1))
 
@@ -251,28 +253,40 @@ def _score_frames(model: torch.nn.Module, loader, ids: list[str], n_cls: int, de
     return pd.DataFrame(rows), counts, preds, inputs
 
 
-def score_test_split(model: torch.nn.Module, dataset_id: str, name: str, cache_dir: Path, out_json: Path,
-                     eval_dir: Path, *, device: torch.device, lidar_channels: int, save_predictions: int,
-                     depth_max_m: float, batch_size: int = 1,
+@dataclass(frozen=True)
+class Scoring:
+    """How a test split is scored: where the network runs, how many frames' predictions are saved
+    for the figures, the evaluated depth range (``evaluate.depth_max_m``) and the frames per
+    forward pass (``evaluate.batch_size``: a network's outputs for a frame move in their last bits
+    with the batch it runs in, docs/gpu.md, so only batch 1 gives the committed scores)."""
+
+    device: torch.device
+    save_predictions: int
+    depth_max_m: float
+    batch_size: int = 1
+
+
+def score_test_split(model: torch.nn.Module, paths: RunPaths, how: Scoring, *, lidar_channels: int,
                      floor: Mapping[str, float] | None = None, extra: Mapping[str, object] | None = None) -> dict:
     """Score ``model`` (a trained network or a trivial predictor, :mod:`.floor`) on the test split of
-    ``cache_dir``, frame by frame, and write ``out_json`` (Table II's numbers and the extra
-    metrics), ``eval_dir/per_frame.csv`` and the saved predictions. ``floor``: the per-task floor
-    (:func:`.floor.floor_of`), whose margins go into ``floor_margin``; ``extra``: more keys for
-    ``out_json``. ``batch_size`` (``evaluate.batch_size``): frames the network runs on together;
-    every frame is scored on its own outputs, but a network's outputs for a frame move in their last
-    bits with the batch it runs in (docs/gpu.md), so only batch 1 gives the committed scores."""
-    cache_dir = Path(cache_dir)
+    ``paths.cache_dir``, frame by frame (each on its own outputs), and write ``paths.metrics_path``
+    (Table II's numbers and the extra metrics), ``paths.eval_dir/per_frame.csv`` and the saved
+    predictions. ``lidar_channels``: the LiDAR top views the model reads; ``floor``: the per-task
+    floor (:func:`.floor.floor_of`), whose margins go into ``floor_margin``; ``extra``: more keys
+    for ``metrics.json``."""
+    cache_dir, dataset_id, name = paths.cache_dir, paths.dataset, paths.model
     meta = read_meta(cache_dir)
     n_cls = len(meta["seg_classes"])
+    device = how.device
     model.to(device).eval()
-    loader = make_loader(cache_dir, "test", lidar_channels, batch_size, shuffle=False, seed=0, num_workers=0,
+    loader = make_loader(cache_dir, "test", lidar_channels, how.batch_size, shuffle=False, seed=0, num_workers=0,
                          drop_last=False)
     ids = read_split(cache_dir, "test", meta).frame_ids
-    per_frame, counts, preds, inputs = _score_frames(model, loader, ids, n_cls, device, save_predictions,
-                                                     f"evaluate {dataset_id}/{name}", depth_max_m)
+    per_frame, counts, preds, inputs = _score_frames(model, loader, ids, n_cls, device, how.save_predictions,
+                                                     f"evaluate {dataset_id}/{name}", how.depth_max_m)
     result: dict = dict(summarise(per_frame))
-    for key, block in (("argmax", summarise_argmax(per_frame)), ("depth", summarise_depth(per_frame, depth_max_m))):
+    for key, block in (("argmax", summarise_argmax(per_frame)),
+                       ("depth", summarise_depth(per_frame, how.depth_max_m))):
         if block is not None:
             result[key] = block
     cls = counts.summary({"ss": list(meta["seg_classes"]), "ls": list(meta["seg_classes"]),
@@ -284,7 +298,7 @@ def score_test_split(model: torch.nn.Module, dataset_id: str, name: str, cache_d
                                           and "mean" in v}, floor)
     result.update({"n_frames": len(per_frame), "source": catalog.source_label(meta.get("source", "sim")),
                    "device": torch.cuda.get_device_name() if device.type == "cuda" else "CPU", **(extra or {})})
-    _write_outputs(Path(eval_dir), Path(out_json), result, per_frame, ids, preds, inputs, save_predictions)
+    _write_outputs(paths.eval_dir, paths.metrics_path, result, per_frame, ids, preds, inputs, how.save_predictions)
     log.info("%s/%s test: %s", dataset_id, name,
              {k: round(v["mean"], 4) for k, v in result.items() if isinstance(v, dict) and "mean" in v})
     return result
@@ -302,33 +316,34 @@ def _write_outputs(eval_dir: Path, out_json: Path, result: dict, per_frame: pd.D
     io.write_json(out_json, result)
 
 
-def evaluate_run(dataset_id: str, model_id: str, cache_dir: Path, run_dir: Path, out_json: Path,
-                 eval_dir: Path, *, device_pref: str, save_predictions: int, num_threads: int, depth_max_m: float,
-                 floor: Mapping[str, float] | None = None, batch_size: int = 1) -> dict:
-    """Score ``run_dir/best.pt`` on the test split of ``cache_dir`` with ``num_threads`` torch
-    threads (``train.num_threads``: the thread count is part of the result), ``batch_size`` frames
-    at a time (:func:`score_test_split`)."""
-    set_threads(num_threads)
-    read_meta(cache_dir)  # a missing or broken cache is named before the checkpoint is read
-    model, best_epoch = load_trained(dataset_id, model_id, Path(run_dir))
-    return score_test_split(model, dataset_id, model_id, cache_dir, out_json, eval_dir,
-                            device=resolve_device(device_pref), lidar_channels=catalog.MODELS[model_id].lidar_channels,
-                            save_predictions=save_predictions, depth_max_m=depth_max_m, batch_size=batch_size,
+def evaluate_run(params: Params, run: PlannedRun, floor: Mapping[str, float] | None = None) -> dict:
+    """Score the run's best checkpoint on the test split of its cache into its ``metrics.json`` and
+    eval folder (:func:`score_test_split`) on ``train.device`` with ``train.num_threads`` torch
+    threads (the thread count is part of the result), ``evaluate.batch_size`` frames at a time;
+    ``evaluate.save_predictions`` frames' predictions saved where the run saves them
+    (``run.save_predictions``: not a study arm). ``floor``: as for :func:`score_test_split`."""
+    ev = params.evaluate
+    set_threads(params.train.num_threads)
+    read_meta(run.paths.cache_dir)  # a missing or broken cache is named before the checkpoint is read
+    model, best_epoch = load_trained(run)
+    how = Scoring(resolve_device(params.train.device), ev.save_predictions if run.save_predictions else 0,
+                  ev.depth_max_m, ev.batch_size)
+    return score_test_split(model, run.paths, how, lidar_channels=catalog.MODELS[run.model].lidar_channels,
                             floor=floor, extra={"best_epoch": best_epoch})
 
 
-def evaluate_floors(dataset_id: str, cache_dir: Path, root: Path | str = ".", *, save_predictions: int,
-                    depth_max_m: float, num_threads: int) -> dict[str, float]:
-    """Fit every trivial predictor (:data:`.floor.TRIVIAL`) on the train split of ``cache_dir``, score
-    it on the test split into ``results/<ds>/<id>/metrics.json`` and ``data/eval/<ds>/<id>/``, and
-    return the per-task floor (:func:`.floor.floor_of`)."""
-    set_threads(num_threads)
+def evaluate_floors(params: Params, dataset_id: str, root: Path | str = ".") -> dict[str, float]:
+    """Fit every trivial predictor (:data:`.floor.TRIVIAL`) on the train split of the dataset's cache
+    under ``root``, score it on the test split (on the CPU, a frame at a time, with
+    ``train.num_threads`` threads) into ``results/<ds>/<id>/metrics.json`` and
+    ``data/eval/<ds>/<id>/`` (:func:`~.core.layout.floor_paths`), and return the per-task floor
+    (:func:`.floor.floor_of`)."""
+    set_threads(params.train.num_threads)
+    how = Scoring(torch.device("cpu"), params.evaluate.save_predictions, params.evaluate.depth_max_m)
     means = {}
     for tid in TRIVIAL.keys():
         paths = floor_paths(dataset_id, tid, root)
-        res = score_test_split(fit_trivial(tid, cache_dir), dataset_id, tid, cache_dir, paths.metrics_path,
-                               paths.eval_dir, device=torch.device("cpu"), lidar_channels=15,
-                               save_predictions=save_predictions, depth_max_m=depth_max_m,
+        res = score_test_split(fit_trivial(tid, paths.cache_dir), paths, how, lidar_channels=15,
                                extra={"predictor": TRIVIAL[tid].label})
         means[tid] = {k: v["mean"] for k, v in res.items() if isinstance(v, dict) and "mean" in v}
     return floor_of(means)

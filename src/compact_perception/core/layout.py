@@ -4,13 +4,15 @@ write every run of that dataset):
 - ``runs/<ds>/<model>/seed<k>/``          checkpoints, dvclive logs, ``summary.json`` (train)
 - ``results/<ds>/<model>/seed<k>/metrics.json``  test scores (evaluate)
 - ``data/eval/<ds>/<model>/seed<k>/``     per-frame scores and saved predictions (evaluate)
+- ``data/cache/<ds>/``                    what it trains on and is scored on (preprocess writes it)
 
 ``k`` is one of the seeds ``Params.seeds_of`` gives (the dataset's ``training.seeds`` for a
 compact model, ``baseline_seeds`` for a baseline). The loss-balancing study's runs live beside
 them, under ``<...>/<ds>/study/<arm>/seed<k>/`` (:func:`study_paths`). Every stage and the report
 build these paths here. The trivial predictors of the floor (:mod:`..floor`), fitted
 once per dataset, have no seed: ``results/<ds>/<id>/metrics.json`` and ``data/eval/<ds>/<id>/``
-(:func:`floor_paths`).
+(:func:`floor_paths`). :class:`RunPaths` holds them all, with the files of the run folder
+(``last.pt``, ``best.pt``, ``summary.json``, ``live/``, ``model.onnx``) that training writes.
 """
 from __future__ import annotations
 
@@ -26,21 +28,53 @@ STUDY_DIR = "study"
 
 @dataclass(frozen=True)
 class RunPaths:
-    """The three locations of one run, relative to ``root``."""
+    """Every location of one run, relative to ``root``: its folders and the files of its run folder.
+    A run trained or scored elsewhere (a test, ``--out``) is these with fields replaced
+    (:func:`dataclasses.replace`)."""
 
     dataset: str
-    model: str
+    model: str           # the model id, ``study:<arm>`` or a trivial predictor's id
     seed: int
     run_dir: Path        # runs/<ds>/<model>/seed<k>
     metrics_path: Path   # results/<ds>/<model>/seed<k>/metrics.json
     eval_dir: Path       # data/eval/<ds>/<model>/seed<k>
+    cache_dir: Path      # data/cache/<ds>
+
+    @property
+    def last(self) -> Path:
+        """Resumable state after the last finished epoch."""
+        return self.run_dir / "last.pt"
+
+    @property
+    def best(self) -> Path:
+        """The network at the best validation score (what evaluation scores)."""
+        return self.run_dir / "best.pt"
+
+    @property
+    def summary(self) -> Path:
+        """Written last: the run is complete."""
+        return self.run_dir / "summary.json"
+
+    @property
+    def live(self) -> Path:
+        """dvclive's logs, rebuilt from the checkpoint's history on every start."""
+        return self.run_dir / "live"
+
+    @property
+    def onnx(self) -> Path:
+        """The best network as ONNX (a compact model's own runs)."""
+        return self.run_dir / "model.onnx"
+
+
+def _paths(dataset: str, model: str, seed: int, root: Path | str, tail: Path) -> RunPaths:
+    root = Path(root)
+    return RunPaths(dataset, model, seed, root / "runs" / tail, root / "results" / tail / "metrics.json",
+                    root / "data" / "eval" / tail, root / "data" / "cache" / dataset)
 
 
 def run_paths(dataset: str, model: str, seed: int, root: Path | str = ".") -> RunPaths:
     """Paths of the run (``dataset``, ``model``, training seed ``seed``) under ``root``."""
-    root, tail = Path(root), Path(dataset) / model / f"seed{seed}"
-    return RunPaths(dataset, model, seed, root / "runs" / tail, root / "results" / tail / "metrics.json",
-                    root / "data" / "eval" / tail)
+    return _paths(dataset, model, seed, root, Path(dataset) / model / f"seed{seed}")
 
 
 def study_paths(arm: str, seed: int, dataset: str, root: Path | str = ".") -> RunPaths:
@@ -48,18 +82,14 @@ def study_paths(arm: str, seed: int, dataset: str, root: Path | str = ".") -> Ru
     ``dataset``): ``runs/<ds>/study/<arm>/seed<k>/``, ``results/<ds>/study/<arm>/seed<k>/metrics.json``,
     ``data/eval/<ds>/study/<arm>/seed<k>/``: inside the dataset's own folders, which its train and
     evaluate stages write."""
-    root, tail = Path(root), Path(dataset) / STUDY_DIR / arm / f"seed{seed}"
-    return RunPaths(dataset, f"study:{arm}", seed, root / "runs" / tail, root / "results" / tail / "metrics.json",
-                    root / "data" / "eval" / tail)
+    return _paths(dataset, f"study:{arm}", seed, root, Path(dataset) / STUDY_DIR / arm / f"seed{seed}")
 
 
 def floor_paths(dataset: str, trivial_id: str, root: Path | str = ".") -> RunPaths:
     """Paths of the evaluation of trivial predictor ``trivial_id`` (``floor_pixel``, ...) on
     ``dataset``: ``results/<ds>/<id>/metrics.json`` and ``data/eval/<ds>/<id>/``; it has no run
     folder (nothing is trained) and no seed (it is deterministic; ``seed`` is -1)."""
-    root, tail = Path(root), Path(dataset) / trivial_id
-    return RunPaths(dataset, trivial_id, -1, root / "runs" / tail, root / "results" / tail / "metrics.json",
-                    root / "data" / "eval" / tail)
+    return _paths(dataset, trivial_id, -1, root, Path(dataset) / trivial_id)
 
 
 def evaluation_folders(paths: Iterable[RunPaths]) -> list[Path]:

@@ -7,6 +7,10 @@ line to ``<file>`` when it exits. The end-to-end test runs ``dvc repro`` with it
 each stage's keys with the ``params:`` that ``dvc.yaml`` lists for it. Without the variable
 nothing is wrapped; the audit never changes a result.
 
+One line per process: a stage's worker processes (``training.parallel``) receive its params
+pickled, and a view unpickles as a view recording into its own process's log, written when that
+process exits.
+
 A value read from a model that says where its values are written (``key_of(name)``: a merged
 recipe of ``train.models.<id>`` inherits keys of ``train.recipe``) records that key too, and a
 method of a params model runs on the view, so what it reads is recorded.
@@ -90,6 +94,11 @@ class ParamsView:
     def __setattr__(self, name: str, value: Any) -> None:
         raise AttributeError("params are read-only")
 
+    def __reduce__(self) -> tuple:
+        """Pickled (to a stage's worker process) as the model and its path: unpickled, a view
+        recording into that process's log (:func:`_reopened`)."""
+        return _reopened, (self._model, self._path)
+
 
 class _MappingView(Mapping):
     """A dict-valued param (``train.models``) whose item reads are recorded per key."""
@@ -113,21 +122,40 @@ class _MappingView(Mapping):
         self._log.add(self._path)
         return len(self._data)
 
+    def __reduce__(self) -> tuple:
+        return _reopened, (self._data, self._path)
+
+
+#: This process's record of the keys read (:func:`_process_log`), written once at its exit.
+_PROCESS_LOG: _Log | None = None
+
+
+def _process_log(target: str) -> _Log:
+    """The log of this process, created (and its line registered to be appended to ``target`` at
+    exit) on first use."""
+    global _PROCESS_LOG
+    if _PROCESS_LOG is None:
+        log = _PROCESS_LOG = _Log()
+
+        def _write() -> None:
+            line = {"stage": Path(sys.argv[0]).stem, "argv": sys.argv[1:], "keys": sorted(leaf_keys(log.keys))}
+            with open(target, "a") as fh:
+                fh.write(json.dumps(line) + "\n")
+
+        atexit.register(_write)
+    return _PROCESS_LOG
+
 
 def audited(params: BaseModel) -> Any:
     """``params`` itself, or a recording :class:`ParamsView` when the audit is on."""
+    return _reopened(params, "")
+
+
+def _reopened(value: Any, path: str) -> Any:
+    """``value`` (params, a section of them at ``path``) recording into this process's log when the
+    audit is on (a spawned worker inherits the stage's environment, so its line is written too)."""
     target = os.environ.get(ENV_VAR)
-    if not target:
-        return params
-    log = _Log()
-
-    def _write() -> None:
-        line = {"stage": Path(sys.argv[0]).stem, "argv": sys.argv[1:], "keys": sorted(leaf_keys(log.keys))}
-        with open(target, "a") as fh:
-            fh.write(json.dumps(line) + "\n")
-
-    atexit.register(_write)
-    return ParamsView(params, "", log)
+    return _wrap(value, path, _process_log(target)) if target else value
 
 
 def leaf_keys(keys: set[str]) -> set[str]:

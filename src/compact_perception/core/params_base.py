@@ -35,6 +35,18 @@ class Scaled(Strict, Generic[T]):
     def at(self, scale: ScaleName) -> T:
         return getattr(self, scale)
 
+    def __reduce__(self) -> tuple:
+        """Pickled by its type argument: a parametrised class (``Scaled[int]``) has no name pickle
+        can import, and a stage hands its params whole to spawned worker processes
+        (``training.parallel``). Unpickled, it is the same class with the same state, not re-validated."""
+        return _parametrised, (self.__pydantic_generic_metadata__["args"],), self.__getstate__()
+
+
+def _parametrised(args: tuple) -> Scaled:
+    """An empty :class:`Scaled` of type argument ``args``, whose state pickle then sets."""
+    cls = Scaled[args[0] if len(args) == 1 else args]
+    return cls.__new__(cls)
+
 
 def _scaled_at_least(v: Optional[Scaled[int]], lo: int) -> Optional[Scaled[int]]:
     """Every scale of an integer :class:`Scaled` count is ``>= lo``."""

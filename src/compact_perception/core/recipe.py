@@ -134,6 +134,12 @@ class ModelRecipe(Strict):
         """The settings section ``name`` (the weighting's own params), ``{}`` when absent."""
         return dict((self.model_extra or {}).get(name) or {})
 
+    @property
+    def key(self) -> str:
+        """The params key this recipe was read from (``train.models.<id>``, ``study.arms.<arm>``);
+        ``""`` for a recipe not read from params."""
+        return self._key
+
     def key_of(self, name: str) -> str:
         """The params key that holds this recipe's value of ``name`` (``train.recipe.lr`` for an
         inherited lr); just ``name`` for a recipe not read from params."""

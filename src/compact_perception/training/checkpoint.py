@@ -27,8 +27,9 @@ import torch
 
 from ..core import io
 from ..core.errors import RunError, checkpoint_load_reason
+from ..core.layout import RunPaths
 from .distributed import Dist
-from .state import RunPaths, RunState
+from .state import RunState
 
 log = logging.getLogger(__name__)
 
@@ -64,7 +65,7 @@ def _write(obj: Any, final: Path) -> None:
 def save_best(run: RunState, epoch: int) -> None:
     """``best.pt``: the network, its tasks, the epoch and its validation score."""
     _write({"model": run.model.state_dict(), "tasks": list(run.model.tasks), "epoch": epoch,
-            "score": run.best_score}, run.spec.paths.best)
+            "score": run.best_score}, run.spec.planned.paths.best)
 
 
 def save_last(run: RunState, epoch: int) -> None:
@@ -78,7 +79,7 @@ def save_last(run: RunState, epoch: int) -> None:
         "elapsed_s": run.elapsed(), "finished": False, "untrained_score": run.untrained_score,
         "device": run.spec.device.type, "precision": run.precision, "scaler": run.scaler.state_dict(),
         "cuda_rng": torch.cuda.get_rng_state(run.spec.device) if run.spec.device.type == "cuda" else None,
-    }, run.spec.paths.last)
+    }, run.spec.planned.paths.last)
 
 
 def _reason(err: Exception) -> str:
@@ -137,8 +138,8 @@ def _check_precision(run: RunState, state: dict) -> None:
     bf16 on a recent GPU, fp32 on most CPUs) is refused: one run in two precisions is neither."""
     saved = state.get("precision", "fp32")
     if saved != run.precision:
-        raise RunError(f"{run.spec.paths.last}: trained in {saved} on {state.get('device', 'cpu')}, this process "
-                       f"resolves train.precision to {run.precision} on {run.spec.device.type}; set train.precision "
+        raise RunError(f"{run.spec.planned.paths.last}: trained in {saved} on {state.get('device', 'cpu')}, this "
+                       f"process resolves train.precision to {run.precision} on {run.spec.device.type}; set train.precision "
                        f"to {saved} to continue it, or delete the file to retrain from scratch")
 
 
@@ -150,7 +151,7 @@ def _restore_cuda_rng(run: RunState, state: dict) -> None:
         torch.cuda.set_rng_state(state["cuda_rng"], run.spec.device)
     if saved_on != here:
         log.warning("%s: saved on %s, resuming on %s: the run continues, with neither device's bytes",
-                    run.spec.paths.out_dir, saved_on, here)
+                    run.spec.planned.paths.run_dir, saved_on, here)
 
 
 def mark_finished(path: Path) -> None:
@@ -164,7 +165,7 @@ def clear_for_start(paths: RunPaths, resuming: bool) -> None:
     """Rank 0, before the epochs: a fresh start removes the files of any earlier run; the dvclive
     folder and the temporary files of a write killed before its rename (:func:`io.remove_leftovers`)
     are always removed (the logs are rebuilt from the checkpoint's history)."""
-    io.remove_leftovers(paths.out_dir)
+    io.remove_leftovers(paths.run_dir)
     if not resuming:
         for stale in (paths.last, paths.best, paths.summary):
             stale.unlink(missing_ok=True)

@@ -49,7 +49,7 @@ def _diverged(run: RunState, err: NonFinite) -> RunError:
     """The one-line error of a diverged run: its folder, the epoch under way (1-based; the
     history holds the finished ones) and what was not finite."""
     when = f"epoch {len(run.history) + 1}" if run.untrained_score is not None else "the untrained network"
-    return RunError(f"{run.spec.paths.out_dir}: {when}: {err}")
+    return RunError(f"{run.spec.planned.paths.run_dir}: {when}: {err}")
 
 
 def task_losses(model: torch.nn.Module, out: dict, batch: dict, de_factor: float,
@@ -274,12 +274,12 @@ def train_epoch(run: RunState, epoch: int) -> dict[str, float]:
     spec = run.spec
     for group in run.optimizer.param_groups:
         group["lr"] = run.lr
-    set_epoch(run.train_loader, epoch, spec.seed)
+    set_epoch(run.train_loader, epoch, spec.rng_seed)
     run.model.train()
     n_steps = len(run.train_loader)
     # the bar never touches the loader: a second iter() of a persistent-worker loader would
     # draw another shuffling order, so the worker count would change the result
-    bar = tqdm(total=n_steps, desc=f"{spec.dataset_id}/{spec.model_id} epoch {epoch + 1}/{run.max_epochs}",
+    bar = tqdm(total=n_steps, desc=f"{spec.planned.name} epoch {epoch + 1}/{run.max_epochs}",
                disable=not (spec.dist.is_main and spec.progress), leave=False)
     try:
         for step, batch in enumerate(run.train_loader):

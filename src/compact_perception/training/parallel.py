@@ -4,7 +4,10 @@
 network at the default scale does not keep two cores busy from one process (at 32 px, batch 6,
 two 1-thread processes train 1.4x faster than one 2-thread process on a 2-core CPU), so a stage
 trains its runs (every model and seed of a dataset, every study arm and seed) in
-``train.parallel_runs`` worker processes, each run with ``train.num_threads`` threads.
+``train.parallel_runs`` worker processes, each run with ``train.num_threads`` threads. A job is
+one input to the stage's worker function, whole (a planned run, :class:`~..plan.PlannedRun`); what
+every job shares (the stage's params) is bound to the function (:func:`functools.partial`), and
+both cross to the workers pickled.
 
 A run's result does not depend on the pool: every run seeds its own RNGs, fixes its own thread
 count and starts from its own checkpoint (``tests/test_parallel.py`` checks that a run trained in
@@ -39,7 +42,7 @@ class Job:
     """One unit of a stage's work, as plain data (it crosses process boundaries)."""
 
     name: str                      # for progress and errors: "A/compact_15l/seed0"
-    args: tuple[Any, ...]          # the worker function's arguments
+    item: Any                      # the worker function's input (a planned run)
     cost: float = 1.0              # relative expected run time: the longest go first
 
 
@@ -50,7 +53,7 @@ class JobError(RuntimeError):
 def _call(fn: Callable[..., Any], job: Job) -> tuple[str, Any, str | None]:
     """Worker side: run one job; an expected error becomes its one-line message."""
     try:
-        return job.name, fn(*job.args), None
+        return job.name, fn(job.item), None
     except OSError as err:  # a full disk, a read-only folder: the file and the OS's reason
         return job.name, None, " ".join(os_error_line(err, job.name).split())
     except (RuntimeError, ValueError) as err:  # RunError, CacheError, ParamsError
@@ -58,9 +61,10 @@ def _call(fn: Callable[..., Any], job: Job) -> tuple[str, Any, str | None]:
 
 
 def run_jobs(fn: Callable[..., Any], jobs: Sequence[Job], processes: int, desc: str) -> list[Any]:
-    """Run ``fn(*job.args)`` for every job in ``processes`` worker processes (in this process
+    """Run ``fn(job.item)`` for every job in ``processes`` worker processes (in this process
     when ``processes`` is 1 or there is one job) and return the results in the order of
-    ``jobs``. ``fn`` must be a module-level function (it is pickled by name). ``processes`` is
+    ``jobs``. ``fn`` must pickle: a module-level function (pickled by name) or a
+    :func:`functools.partial` of one with picklable arguments. ``processes`` is
     bounded by the usable cores (:func:`~..core.machine.bounded`). Raises :class:`JobError` with
     the first failing job's message."""
     processes = bounded(processes)

@@ -1,6 +1,7 @@
 """The state of one training run (paper section IV-D), shared by the steps of :mod:`.train`.
 
-:class:`RunSpec` is what the run is, fixed before anything is built (the recipe, the device and
+:class:`RunSpec` is the planned run (:class:`~compact_perception.plan.PlannedRun`: its ids, recipe,
+epoch cap and paths) with how this process runs it, fixed before anything is built (the device and
 processes, the RNG seed and the digest that gates resuming); :class:`RunState` is the spec with
 the training machinery the setup step builds and the progress the other steps advance (and a
 checkpoint saves: :mod:`.checkpoint`).
@@ -10,57 +11,35 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Callable, Optional
 
 import torch
 from torch import nn
 from torch.utils.data import DataLoader
 
-from ..core.config import ModelRecipe, Params
+from ..core.config import Params
+from ..plan import PlannedRun
 from ..weighting import LossWeighting
 from .distributed import Dist
 from ..schedule import EarlyStop, Plateau
 
-__all__ = ["RunPaths", "RunSpec", "RunState"]
-
-
-@dataclass(frozen=True)
-class RunPaths:
-    """The files of one run folder (a persistent DVC output)."""
-
-    out_dir: Path
-    last: Path       # resumable state after the last finished epoch
-    best: Path       # the network at the best validation score
-    summary: Path    # written last: the run is complete
-    live: Path       # dvclive's logs, rebuilt from the checkpoint's history on every start
-    onnx: Path       # the best network as ONNX (compact models)
-
-    @classmethod
-    def under(cls, out_dir: Path) -> "RunPaths":
-        return cls(out_dir, out_dir / "last.pt", out_dir / "best.pt", out_dir / "summary.json", out_dir / "live",
-                   out_dir / "model.onnx")
+__all__ = ["RunSpec", "RunState"]
 
 
 @dataclass(frozen=True)
 class RunSpec:
-    """What one run is: its inputs, where it runs and writes, and its identity (seed, digest)."""
+    """What one run is (the planned run, the params) and how this process runs it."""
 
     params: Params
-    dataset_id: str
-    model_id: str
-    recipe: ModelRecipe
-    cache_dir: Path
-    paths: RunPaths
+    planned: PlannedRun
     device: torch.device
     dist: Dist
-    seed: int                          # the RNG seed (train.run_seed)
+    rng_seed: int                      # train.run_seed of the planned run's training seed
     digest: str                        # train.run_digest: a checkpoint of another digest is not resumed
     per_rank_batch: int
     num_seg_classes: int
-    dtype: torch.dtype
-    stop_after_epochs: Optional[int]   # end the process after this many epochs of this call (tests)
-    export_onnx: bool
+    dtype: torch.dtype = torch.float32
+    stop_after_epochs: Optional[int] = None  # end the process after this many epochs of this call (tests)
     progress: bool = True              # a per-step progress bar (off in a stage's worker processes)
 
 

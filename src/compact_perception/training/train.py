@@ -1,6 +1,7 @@
 """The training loop of paper section IV-D with the loss weighting of section III-C.
 
-One run = one (dataset, model) pair. Per epoch it logs every task loss and metric (train
+One run = one planned run (:class:`~compact_perception.plan.PlannedRun`: a model or a study arm
+at a seed on a dataset, with its recipe, epoch cap and paths), carried whole. Per epoch it logs every task loss and metric (train
 and val), the learning rates and the loss weights through dvclive (``dvcyaml=False``),
 keeps the best-on-validation checkpoint, halves the lr on a validation-TM plateau, stops
 early, and saves a resumable checkpoint after every finished epoch. A killed run started
@@ -8,7 +9,7 @@ again with the same code, params and data continues from its last finished epoch
 with the same bytes as an uninterrupted run; any other change starts it afresh (the
 checkpoint's digest covers the source code, every ``train`` param of the run and the data).
 
-Outputs (``out_dir``, a persistent DVC output):
+Outputs (the run's ``paths.run_dir``, a persistent DVC output):
 
 - ``last.pt``      resumable state (model, optimiser, weighting, schedules, history)
 - ``best.pt``      model weights at the best validation score
@@ -42,7 +43,7 @@ import torch
 
 from . import distributed as ddp
 from ..core import catalog, io
-from ..core.config import ModelRecipe, Params
+from ..core.config import Params
 from ..core.determinism import release_torch_pins, resolve_device, set_determinism, set_threads
 from ..core.errors import RunError
 from ..core.machine import bounded, cpu_name
@@ -55,8 +56,9 @@ from .checkpoint import (clear_for_start, discard_unsaved, load_resumable, mark_
 from .epoch import selection_score, split_scores, train_epoch, validate
 from .precision import make_grad_scaler, maybe_compile, resolve_precision, to_channels_last
 from .provenance import source_fingerprint
+from ..plan import PlannedRun
 from ..schedule import EarlyStop, Plateau
-from .state import RunPaths, RunSpec, RunState
+from .state import RunSpec, RunState
 
 log = logging.getLogger(__name__)
 
@@ -103,22 +105,20 @@ def cache_fingerprint(cache_dir: Path) -> str:
     return h.hexdigest()
 
 
-def run_digest(params: Params, dataset_id: str, model_id: str, seed: int, cache_hash: str,
-               world_size: int, recipe: ModelRecipe | None = None) -> str:
+def run_digest(params: Params, run: PlannedRun, rng_seed: int, cache_hash: str, world_size: int) -> str:
     """Digest of everything that decides a run's result; it gates resuming and skipping.
 
     It covers the source code (:func:`~compact_perception.training.provenance.source_fingerprint`),
-    the torch version, ``scale``, the run's seed, every ``train`` param except the recipes (the
-    run's own merged recipe is covered whole) and the settings that cannot change a result
-    (``num_workers``, ``parallel_runs``, ``device``), the run's epoch cap, the training and
-    validation data, and the number of processes.
+    the torch version, ``scale``, the run's RNG seed ``rng_seed`` (:func:`run_seed`), every ``train``
+    param except the recipes (the run's own merged recipe is covered whole) and the settings that
+    cannot change a result (``num_workers``, ``parallel_runs``, ``device``), the run's epoch cap, the
+    training and validation data (``cache_hash``, :func:`cache_fingerprint`), and the number of processes.
     """
-    recipe = recipe or params.train.models[model_id]
     train = params.train.model_dump(exclude={"models", "recipe", "num_workers", "parallel_runs", "device"})
     blob = json.dumps({
         "code": source_fingerprint(), "torch": torch.__version__, "scale": params.scale,
-        "dataset": dataset_id, "model": model_id, "seed": seed, "train": train,
-        "recipe": recipe.model_dump(), "max_epochs": params.max_epochs_of(recipe, dataset_id), "data": cache_hash,
+        "dataset": run.dataset, "model": run.model, "seed": rng_seed, "train": train,
+        "recipe": run.recipe.model_dump(), "max_epochs": run.max_epochs, "data": cache_hash,
         "world_size": world_size,
     }, sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
@@ -145,13 +145,13 @@ def _log_epoch(live, record: dict) -> None:
     live.next_step()
 
 
-def _check_inputs(params: Params, model_id: str, recipe: ModelRecipe, where: str, cache_dir: Path,
-                  per_rank_batch: int) -> dict:
-    """Everything a run needs, checked before anything is written; returns the cache meta.
-    ``where``: the params key of ``recipe`` (for the messages)."""
+def _check_inputs(params: Params, run: PlannedRun, per_rank_batch: int) -> dict:
+    """Everything a run needs, checked before anything is written; returns the cache meta. The
+    messages name the params key of the run's recipe."""
     from ..core.cache import CacheError, read_meta, read_split
 
-    compact = catalog.MODELS[model_id].group == "compact"
+    recipe, where, cache_dir = run.recipe, run.recipe_key, run.paths.cache_dir
+    compact = catalog.MODELS[run.model].group == "compact"
     if compact and recipe.de_loss is None:
         raise RunError(f"{where}.de_loss: required for a compact model (huber or smooth_l1)")
     if not compact and recipe.de_loss is not None:
@@ -178,60 +178,40 @@ def _devices(preference: str) -> tuple[torch.device, ddp.Dist]:
     return device, dist_
 
 
-def train_run(
-    params: Params,
-    dataset_id: str,
-    model_id: str,
-    seed: int,
-    cache_dir: Path,
-    out_dir: Path,
-    *,
-    recipe: ModelRecipe | None = None,
-    recipe_key: str | None = None,
-    stop_after_epochs: int | None = None,
-    dtype: torch.dtype = torch.float32,
-    export_onnx: bool = True,
-    progress: bool = True,
-) -> dict:
-    """Train ``model_id`` on ``dataset_id`` with training seed ``seed`` (one of ``params.seeds_of``)
-    from ``cache_dir`` into ``out_dir``. ``recipe`` (default ``train.models.<model_id>``) and
-    ``recipe_key``, its params key for messages, let the study train one network with other recipes.
-
-    ``export_onnx`` writes a compact network's best checkpoint as ``model.onnx`` too (issue 15);
-    the study turns it off, its arms being comparisons, not deployable models. ``progress``: a
-    per-step progress bar (off in a stage's worker processes, :mod:`.parallel`, which log epochs).
+def train_run(params: Params, run: PlannedRun, *, stop_after_epochs: int | None = None,
+              dtype: torch.dtype = torch.float32, progress: bool = True) -> dict:
+    """Train the planned run ``run`` (:func:`~compact_perception.plan.planned_run`: its network,
+    recipe, training seed and epoch cap) from ``run.paths.cache_dir`` into ``run.paths.run_dir``;
+    a compact network's own run (``run.export_onnx``) also writes its best checkpoint as
+    ``model.onnx``. ``progress``: a per-step progress bar (off in a stage's worker processes,
+    :mod:`.parallel`, which log epochs).
 
     ``stop_after_epochs`` ends the process after that many epochs of this call without
     writing the summary (it simulates an interruption, for tests). A failure to write a
     checkpoint (a full disk) raises :class:`RunError`; a run that never saved an epoch then
     leaves nothing behind.
     """
-    cache_dir, tp = Path(cache_dir), params.train
-    if recipe is None:
-        recipe, recipe_key = tp.models[model_id], f"train.models.{model_id}"
-    recipe_key = recipe_key or f"train.models.{model_id}"
+    tp = params.train
     if tp.precision != "fp32":  # mixed precision wants the CPU's own (bf16/AMX) kernels: no pins, no bit promise
         release_torch_pins()
     device, dist_ = _devices(tp.device)
     per_rank_batch = max(1, tp.batch_size // dist_.world_size)
-    meta = _check_inputs(params, model_id, recipe, recipe_key, cache_dir, per_rank_batch)
+    meta = _check_inputs(params, run, per_rank_batch)
     set_threads(tp.num_threads)
-    rng_seed = run_seed(params, dataset_id, seed)
-    digest = run_digest(params, dataset_id, model_id, rng_seed, cache_fingerprint(cache_dir), dist_.world_size,
-                        recipe)
-    spec = RunSpec(params, dataset_id, model_id, recipe, cache_dir, RunPaths.under(Path(out_dir)), device, dist_,
-                   rng_seed, digest, per_rank_batch, len(meta["seg_classes"]), dtype, stop_after_epochs, export_onnx,
-                   progress)
+    rng_seed = run_seed(params, run.dataset, run.seed)
+    digest = run_digest(params, run, rng_seed, cache_fingerprint(run.paths.cache_dir), dist_.world_size)
+    spec = RunSpec(params, run, device, dist_, rng_seed, digest, per_rank_batch, len(meta["seg_classes"]), dtype,
+                   stop_after_epochs, progress)
     try:
         return _train(spec)
     except InterruptedError:  # stop_after_epochs (an OSError subclass): not a write failure
         raise
     except RunError:  # a diverged or damaged run: what it saved stays, a run that saved nothing leaves nothing
-        discard_unsaved(spec.paths, dist_)
+        discard_unsaved(run.paths, dist_)
         raise
     except OSError as err:  # a full disk, a read-only folder: say which file, leave no half-run
-        discard_unsaved(spec.paths, dist_)
-        raise RunError(f"{err.filename or spec.paths.out_dir}: could not write the run ({err.strerror or err})") \
+        discard_unsaved(run.paths, dist_)
+        raise RunError(f"{err.filename or run.paths.run_dir}: could not write the run ({err.strerror or err})") \
             from None
 
 
@@ -255,17 +235,17 @@ def _train(spec: RunSpec) -> dict:
 def _setup(spec: RunSpec) -> RunState:
     """Seed the RNGs and build what trains: the network (channels-last, compiled forward if asked),
     the loss weighting, the optimiser, the plateau schedule, early stopping, the precision."""
-    tp, recipe = spec.params.train, spec.recipe
+    tp, planned = spec.params.train, spec.planned
+    recipe = planned.recipe
     set_determinism(spec.device, tp.deterministic, tp.tf32)  # before the first kernel (cuBLAS reads its env once)
-    seed_everything(spec.seed)
-    tasks = network_tasks(recipe, catalog.MODELS[spec.model_id].tasks)  # one task for the study's single-task nets
-    model = build_model(spec.model_id, spec.dataset_id, tasks).to(device=spec.device, dtype=spec.dtype)
+    seed_everything(spec.rng_seed)
+    tasks = network_tasks(recipe, catalog.MODELS[planned.model].tasks)  # one task for the study's single-task nets
+    model = build_model(planned.model, planned.dataset, tasks).to(device=spec.device, dtype=spec.dtype)
     if tp.channels_last:
         model = to_channels_last(model)
     weighting = build_weighting(recipe, model.tasks, model, plateau_patience=tp.plateau_patience,
                                 plateau_factor=tp.plateau_factor)
     optimizer = make_optimizer(recipe, model.parameters())
-    max_epochs = spec.params.max_epochs_of(recipe, spec.dataset_id)
     plateau = Plateau(tp.plateau_patience, tp.plateau_factor, recipe.lr_min, recipe.plateau_rule,
                       tp.plateau_threshold)
     de_factor = de_loss_factor(recipe.de_loss) if recipe.de_loss is not None else 1.0
@@ -274,24 +254,24 @@ def _setup(spec: RunSpec) -> RunState:
     scaler = make_grad_scaler(spec.device, precision)
     forward = maybe_compile(model, tp.compile)
     return RunState(spec, model, forward, weighting, optimizer, plateau, stopper, scaler, precision, de_factor,
-                    max_epochs, lr=recipe.lr)
+                    planned.max_epochs, lr=recipe.lr)
 
 
 def _resume(run: RunState) -> Optional[dict]:
     """Continue after the last finished epoch when ``last.pt`` is of this run (its digest), else
     start afresh; returns the summary of a run already complete for this code, params and data."""
-    spec = run.spec
-    state = load_resumable(spec.paths.last, spec.digest)
-    if state is not None and state.get("finished") and spec.paths.summary.exists():
-        log.info("%s: already complete for this code, params and data", spec.paths.out_dir)
+    spec, paths = run.spec, run.spec.planned.paths
+    state = load_resumable(paths.last, spec.digest)
+    if state is not None and state.get("finished") and paths.summary.exists():
+        log.info("%s: already complete for this code, params and data", paths.run_dir)
         ddp.shutdown(spec.dist)
-        return json.loads(spec.paths.summary.read_text())
+        return json.loads(paths.summary.read_text())
     if spec.dist.is_main:
-        clear_for_start(spec.paths, resuming=state is not None)
+        clear_for_start(paths, resuming=state is not None)
     ddp.barrier(spec.dist)
     if state is not None:
         restore(run, state)
-        log.info("%s: resuming after epoch %d", spec.paths.out_dir, state["epoch"] + 1)
+        log.info("%s: resuming after epoch %d", paths.run_dir, state["epoch"] + 1)
     return None
 
 
@@ -300,21 +280,22 @@ def _open(run: RunState) -> None:
     taken once per run) and, on rank 0, the dvclive logs replayed from the history."""
     from dvclive import Live
 
-    spec, tp = run.spec, run.spec.params.train
-    channels = catalog.MODELS[spec.model_id].lidar_channels
+    spec, tp, planned = run.spec, run.spec.params.train, run.spec.planned
+    channels = catalog.MODELS[planned.model].lidar_channels
     workers = bounded(tp.num_workers)  # at most the usable cores (core.machine): no result changes
     labelled = getattr(run.model, "labelled_maps", ())  # class maps whose labelled pixels the loader finds
-    run.val_loader = make_loader(spec.cache_dir, "val", channels, spec.per_rank_batch, shuffle=False, seed=spec.seed,
+    run.val_loader = make_loader(planned.paths.cache_dir, "val", channels, spec.per_rank_batch, shuffle=False,
+                                 seed=spec.rng_seed,
                                  num_workers=workers, drop_last=False, distributed=spec.dist.enabled,
                                  labelled=labelled)
     if run.untrained_score is None:  # the Kaiming-initialised network
         run.untrained_score = selection_score(validate(run))
-        log.info("%s/%s untrained val score %.4f", spec.dataset_id, spec.model_id, run.untrained_score)
-    run.train_loader = make_loader(spec.cache_dir, "train", channels, spec.per_rank_batch, shuffle=True,
-                                   seed=spec.seed, num_workers=workers, drop_last=True,
+        log.info("%s untrained val score %.4f", planned.name, run.untrained_score)
+    run.train_loader = make_loader(planned.paths.cache_dir, "train", channels, spec.per_rank_batch, shuffle=True,
+                                   seed=spec.rng_seed, num_workers=workers, drop_last=True,
                                    distributed=spec.dist.enabled, labelled=labelled)
     if spec.dist.is_main:
-        run.live = Live(str(spec.paths.live), dvcyaml=False, save_dvc_exp=False)
+        run.live = Live(str(planned.paths.live), dvcyaml=False, save_dvc_exp=False)
         for record in run.history:  # the logs hold exactly the epochs the checkpoint holds
             _log_epoch(run.live, record)
     run.started = time.perf_counter()
@@ -335,7 +316,7 @@ def _end_epoch(run: RunState, epoch: int, train_m: dict, val_m: dict) -> tuple[d
               **{f"train/{k}": v for k, v in train_m.items()}, **{f"val/{k}": v for k, v in val_m.items()},
               **run.weighting.log_values()}
     run.history.append(record)
-    log.info("%s/%s epoch %d: val score %.4f%s", run.spec.dataset_id, run.spec.model_id, epoch + 1, score,
+    log.info("%s epoch %d: val score %.4f%s", run.spec.planned.name, epoch + 1, score,
              " (best)" if improved else "")
     return record, improved
 
@@ -368,14 +349,14 @@ def _export_best(run: RunState) -> dict:
     validation frame; returns the largest absolute output difference."""
     from ..onnx_export import export_onnx
 
-    spec = run.spec
-    best = read_checkpoint(spec.paths.best, f"delete {spec.paths.last} to retrain from scratch")
+    spec, paths = run.spec, run.spec.planned.paths
+    best = read_checkpoint(paths.best, f"delete {paths.last} to retrain from scratch")
     run.model.load_state_dict(best["model"])
     batch = to_device(next(iter(run.val_loader)), spec.device, spec.num_seg_classes)
     one = {k: v[:1] for k, v in batch.items()}
-    report = export_onnx(run.model, one, spec.paths.onnx)
-    log.info("%s: ONNX max abs difference to PyTorch %.2e", spec.paths.onnx, report["max_abs_diff_all"])
-    return {"file": spec.paths.onnx.name, "max_abs_diff": float(report["max_abs_diff_all"])}
+    report = export_onnx(run.model, one, paths.onnx)
+    log.info("%s: ONNX max abs difference to PyTorch %.2e", paths.onnx, report["max_abs_diff_all"])
+    return {"file": paths.onnx.name, "max_abs_diff": float(report["max_abs_diff_all"])}
 
 
 def _device_name(device: torch.device) -> str:
@@ -386,9 +367,9 @@ def _device_name(device: torch.device) -> str:
 def _finish(run: RunState) -> dict:
     """The run's summary (written last: the run is complete), the ONNX export of a compact
     network, and ``last.pt`` marked finished."""
-    spec = run.spec
+    spec, planned = run.spec, run.spec.planned
     summary = {
-        "dataset": spec.dataset_id, "model": spec.model_id, "rng_seed": spec.seed, "best_epoch": run.best_epoch,
+        "dataset": planned.dataset, "model": planned.model, "rng_seed": spec.rng_seed, "best_epoch": run.best_epoch,
         "best_val_score": run.best_score, "untrained_val_score": run.untrained_score,
         "epochs_run": len(run.history), "max_epochs": run.max_epochs, "stopped_early": run.stopped_early,
         # why it ended (section IV-D): validation stopped improving, or the safety cap
@@ -401,12 +382,12 @@ def _finish(run: RunState) -> dict:
         "final_weights": {k: v for k, v in (run.history[-1] if run.history else {}).items() if k.startswith("w_")},
         "digest": spec.digest,
     }
-    if spec.export_onnx and spec.dist.is_main and catalog.MODELS[spec.model_id].group == "compact":
+    if planned.export_onnx and spec.dist.is_main and catalog.MODELS[planned.model].group == "compact":
         summary["onnx"] = _export_best(run)  # deployable, beside its checkpoint
     if spec.dist.is_main:
         run.live.end()
-        mark_finished(spec.paths.last)
-        io.write_json(spec.paths.summary, summary)
+        mark_finished(planned.paths.last)
+        io.write_json(planned.paths.summary, summary)
     ddp.barrier(spec.dist)
     ddp.shutdown(spec.dist)
     return summary
