@@ -139,8 +139,8 @@ def _check_precision(run: RunState, state: dict) -> None:
     saved = state.get("precision", "fp32")
     if saved != run.precision:
         raise RunError(f"{run.spec.planned.paths.last}: trained in {saved} on {state.get('device', 'cpu')}, this "
-                       f"process resolves train.precision to {run.precision} on {run.spec.device.type}; set train.precision "
-                       f"to {saved} to continue it, or delete the file to retrain from scratch")
+                       f"process resolves train.precision to {run.precision} on {run.spec.device.type}; set "
+                       f"train.precision to {saved} to continue it, or delete the file to retrain from scratch")
 
 
 def _restore_cuda_rng(run: RunState, state: dict) -> None:

@@ -1,13 +1,13 @@
 """The training loop of paper section IV-D with the loss weighting of section III-C.
 
 One run = one planned run (:class:`~compact_perception.plan.PlannedRun`: a model or a study arm
-at a seed on a dataset, with its recipe, epoch cap and paths), carried whole. Per epoch it logs every task loss and metric (train
-and val), the learning rates and the loss weights through dvclive (``dvcyaml=False``),
-keeps the best-on-validation checkpoint, halves the lr on a validation-TM plateau, stops
-early, and saves a resumable checkpoint after every finished epoch. A killed run started
-again with the same code, params and data continues from its last finished epoch and ends
-with the same bytes as an uninterrupted run; any other change starts it afresh (the
-checkpoint's digest covers the source code, every ``train`` param of the run and the data).
+at a seed on a dataset, with its recipe, epoch cap and paths), carried whole. Per epoch it logs
+every task loss and metric (train and val), the learning rates and the loss weights through
+dvclive (``dvcyaml=False``), keeps the best-on-validation checkpoint, halves the lr on a
+validation-TM plateau, stops early, and saves a resumable checkpoint after every finished epoch.
+A killed run started again with the same code, params and data continues from its last finished
+epoch and ends with the same bytes as an uninterrupted run; any other change starts it afresh
+(the checkpoint's digest covers the source code, every ``train`` param of the run and the data).
 
 Outputs (the run's ``paths.run_dir``, a persistent DVC output):
 
@@ -200,8 +200,9 @@ def train_run(params: Params, run: PlannedRun, *, stop_after_epochs: int | None 
     set_threads(tp.num_threads)
     rng_seed = run_seed(params, run.dataset, run.seed)
     digest = run_digest(params, run, rng_seed, cache_fingerprint(run.paths.cache_dir), dist_.world_size)
-    spec = RunSpec(params, run, device, dist_, rng_seed, digest, per_rank_batch, len(meta["seg_classes"]), dtype,
-                   stop_after_epochs, progress)
+    spec = RunSpec(params, run, device, dist_, rng_seed=rng_seed, digest=digest, per_rank_batch=per_rank_batch,
+                   num_seg_classes=len(meta["seg_classes"]), dtype=dtype, stop_after_epochs=stop_after_epochs,
+                   progress=progress)
     try:
         return _train(spec)
     except InterruptedError:  # stop_after_epochs (an OSError subclass): not a write failure
@@ -285,9 +286,8 @@ def _open(run: RunState) -> None:
     workers = bounded(tp.num_workers)  # at most the usable cores (core.machine): no result changes
     labelled = getattr(run.model, "labelled_maps", ())  # class maps whose labelled pixels the loader finds
     run.val_loader = make_loader(planned.paths.cache_dir, "val", channels, spec.per_rank_batch, shuffle=False,
-                                 seed=spec.rng_seed,
-                                 num_workers=workers, drop_last=False, distributed=spec.dist.enabled,
-                                 labelled=labelled)
+                                 seed=spec.rng_seed, num_workers=workers, drop_last=False,
+                                 distributed=spec.dist.enabled, labelled=labelled)
     if run.untrained_score is None:  # the Kaiming-initialised network
         run.untrained_score = selection_score(validate(run))
         log.info("%s untrained val score %.4f", planned.name, run.untrained_score)
