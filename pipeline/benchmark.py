@@ -50,7 +50,7 @@ def main(argv: list[str] | None = None) -> None:
         raise SystemExit("error: params train.device is 'cuda' but no CUDA device is available")
     device = torch.device("cuda" if pref != "cpu" and torch.cuda.is_available() else "cpu")
     torch.manual_seed(params.seed)
-    S = params.world.resolution.at(params.scale)
+    S = params.resolution
     bp = params.benchmark
     out: dict = {
         "device": device_name(device), "is_gpu": device.type == "cuda", "resolution": S, "scale": params.scale,

@@ -313,3 +313,35 @@ def test_the_report_stage_runs_without_torch(tmp_path):
     assert _in_fresh_interpreter(code) == []
     for name in ("index.md", "tables/table2.md", "tables/claims.md", "figures/report/qualitative_A.png"):
         assert (tmp_path / "reports" / name).is_file(), name
+
+
+# ----------------------------------------------------------------------------- scale, resolved once
+#: The one module that resolves a per-scale value at the params' own ``scale``: ``Params``'
+#: accessors (``resolution``, ``frames_of``, ``split_counts_of``, ``study_datasets``, ...).
+SCALE_RESOLVED_IN = PKG / "core" / "params_schema.py"
+
+
+def _scale_lookups(path: Path) -> list[str]:
+    """``file:line: code`` of every ``<value>.at(<x>.scale)`` call in ``path`` (a ``Scaled`` read
+    at the params' own scale), whatever ``<x>`` is named."""
+    tree = ast.parse(path.read_text(), str(path))
+    return [f"{path.name}:{node.lineno}: {ast.unparse(node)}" for node in ast.walk(tree)
+            if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr == "at"
+            and any(isinstance(a, ast.Attribute) and a.attr == "scale" for a in node.args)]
+
+
+def test_scale_is_resolved_where_params_load():
+    """No module below the params schema, no stage and no benchmark reads ``.at(params.scale)``:
+    they ask ``Params`` for the value at its scale, so the scale is chosen in one place."""
+    files = [p for d in (PKG, ROOT / "pipeline", ROOT / "benchmarks") for p in sorted(d.rglob("*.py"))]
+    found = [hit for p in files if p != SCALE_RESOLVED_IN for hit in _scale_lookups(p)]
+    assert not found, "a per-scale value resolved outside core/params_schema.py:\n" + "\n".join(found)
+    assert _scale_lookups(SCALE_RESOLVED_IN), "the checker finds nothing where the scale is resolved"
+
+
+def test_the_scale_checker_finds_any_spelling(tmp_path):
+    src = tmp_path / "x.py"
+    src.write_text("def f(p, spec):\n    a = p.world.resolution.at(p.scale)\n    b = spec.x.at(spec.params.scale)\n"
+                   "    c = p.world.resolution.at('full')\n")
+    hits = _scale_lookups(src)
+    assert [h.split(": ", 1)[1] for h in hits] == ["p.world.resolution.at(p.scale)", "spec.x.at(spec.params.scale)"]

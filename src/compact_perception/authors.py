@@ -538,7 +538,7 @@ def write_raw(params: Params, dataset_id: str, out_dir: Path) -> None:
     """Check the release and write ``out_dir/manifest.json`` (:func:`describe_authors_dataset`)."""
     dp = getattr(params.datasets, dataset_id)
     describe_authors_dataset(dp.authors_root, dp.authors_splits, dataset_id, out_dir,
-                             resolution=params.world.resolution.at(params.scale), workers=params.world.workers)
+                             resolution=params.resolution, workers=params.world.workers)
 
 
 def draw_example(params: Params, dataset_id: str, raw_dir: Path, figure: Path) -> None:
@@ -557,4 +557,4 @@ def cache(params: Params, dataset_id: str, raw_dir: Path, out_dir: Path) -> Path
     """Convert the release into the cache at ``out_dir`` (:func:`ingest_authors`)."""
     dp = getattr(params.datasets, dataset_id)
     return ingest_authors(dp.authors_root, dp.authors_splits, out_dir, dataset_id,
-                          resolution=params.world.resolution.at(params.scale), workers=params.preprocess.workers)
+                          resolution=params.resolution, workers=params.preprocess.workers)

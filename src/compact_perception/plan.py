@@ -84,7 +84,7 @@ def dataset_runs(params: Any, dataset: str, root: Path | str = ".") -> list[Plan
     arms in ``study.arm_ids`` order when ``dataset`` is a study dataset at this scale."""
     out = [planned_run(params, dataset, m, k, None, root)
            for m in params.model_ids for k in params.seeds_of(catalog.MODELS[m].group, dataset)]
-    if dataset in params.study.datasets.at(params.scale):
+    if dataset in params.study_datasets:
         base = params.study.base_model
         out += [planned_run(params, dataset, base, k, str(arm), root)
                 for arm in params.study.arm_ids for k in params.seeds_of(catalog.MODELS[base].group, dataset)]

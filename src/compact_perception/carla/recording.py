@@ -76,7 +76,7 @@ def plan_recording(params: Params, dataset_id: str) -> list[EpisodePlan]:
     ``carla.frames_per_episode`` per episode, towns as the simulated sets use them."""
     dp = getattr(params.datasets, dataset_id)
     cs = dp.carla
-    n = dp.split_ratio.at(params.scale).counts(dp.frames.at(params.scale))
+    n = params.split_counts_of(dataset_id)
     if dp.split_by == "town":
         towns = {"train": list(dp.train_towns), "val": list(dp.eval_towns), "test": list(dp.eval_towns)}
     else:
@@ -101,7 +101,7 @@ def plan_document(params: Params, dataset_id: str) -> dict[str, Any]:
     """What a recording is made of; two recordings with equal documents are interchangeable."""
     dp = getattr(params.datasets, dataset_id)
     cs = dp.carla
-    size = params.world.resolution.at(params.scale)
+    size = params.resolution
     return {
         "dataset": dataset_id, "resolution": size, "views": list(VIEWS),
         "episodes": [asdict(e) for e in plan_recording(params, dataset_id)],

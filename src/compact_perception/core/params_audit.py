@@ -64,8 +64,9 @@ class ParamsView:
     """Read-only view of a params model that records each key read (``a.b.c``).
 
     Reading a field records its path; ``model_dump`` records every field (and extra key) it
-    dumps; a public method of the model's own class (``Scaled.at``, ``Params.study_recipe``) runs
-    with this view as ``self``; anything else is passed through.
+    dumps; a public method or property of the model's own class (``Scaled.at``,
+    ``Params.study_recipe``, ``Params.resolution``) runs with this view as ``self``; anything else
+    is passed through.
     """
 
     def __init__(self, model: BaseModel, path: str, log: _Log) -> None:
@@ -87,6 +88,8 @@ class ParamsView:
                 return model.model_dump(*args, exclude=exclude, **kwargs)
             return dump
         method = inspect.getattr_static(type(model), name, None)
+        if isinstance(method, property):  # computed from fields (``Params.resolution``): read through the view
+            return method.fget(self)
         if inspect.isfunction(method) and not name.startswith("_") and name not in vars(BaseModel):
             return types.MethodType(method, self)
         return value

@@ -421,6 +421,37 @@ class Params(Strict):
             raise ParamsError(_format(err, source, lambda loc: _in_params(loc, key, inherited))) from None
         return recipe.placed(key, inherited)
 
+    # The values of this file's ``scale``. ``scale`` is resolved here, where params load, and
+    # nowhere below: a module reads a per-scale value (:class:`Scaled`) through these, never with
+    # ``.at(params.scale)`` (tests/test_layers.py holds it).
+
+    @property
+    def resolution(self) -> int:
+        """``world.resolution`` at this scale: the side S of every image and top view (px)."""
+        return self.world.resolution.at(self.scale)
+
+    def frames_of(self, dataset: str) -> int:
+        """``datasets.<ds>.frames`` at this scale (a simulated set's frames in all splits)."""
+        return self.dataset(dataset).frames.at(self.scale)
+
+    def split_counts_of(self, dataset: str) -> dict[str, int]:
+        """Frames per split of a simulated set at this scale (``split_ratio`` applied to ``frames``)."""
+        return self.dataset(dataset).split_ratio.at(self.scale).counts(self.frames_of(dataset))
+
+    @property
+    def study_datasets(self) -> list[str]:
+        """``study.datasets`` at this scale: the datasets the loss-balancing study runs on."""
+        return list(self.study.datasets.at(self.scale))
+
+    @property
+    def nuscenes_sim_scenes(self) -> int:
+        """``datasets.nuscenes.sim_scenes`` at this scale (scenes of the simulated nuScenes set)."""
+        return self.datasets.nuscenes.sim_scenes.at(self.scale)
+
+    def patience_of(self, recipe: ModelRecipe) -> int:
+        """A run's early-stopping patience at this scale (the recipe's ``early_stop_patience``)."""
+        return recipe.early_stop_patience.at(self.scale)
+
     def seeds_of(self, group: str, dataset: str) -> list[int]:
         """The training seeds of a model group (``catalog.ModelInfo.group``) on ``dataset`` at this
         scale: ``datasets.<ds>.training.seeds`` for ``compact``, ``baseline_seeds`` for ``baseline``."""

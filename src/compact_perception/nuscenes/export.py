@@ -378,7 +378,7 @@ def _default_episode_source() -> EpisodeSource:
 
 def scene_plan(params: Params, n_scenes: Optional[int] = None) -> list[tuple[int, str, int]]:
     """(scene index, town, episode seed) of every simulated scene."""
-    n = params.datasets.nuscenes.sim_scenes.at(params.scale) if n_scenes is None else int(n_scenes)
+    n = params.nuscenes_sim_scenes if n_scenes is None else int(n_scenes)
     return [(i, TOWNS[i % len(TOWNS)], episode_seed(params.seed, i)) for i in range(n)]
 
 
@@ -397,7 +397,7 @@ def export_nuscenes_sim(
     """
     ns = params.datasets.nuscenes
     source = episode_source or _default_episode_source()
-    resolution = params.world.resolution.at(params.scale)
+    resolution = params.resolution
     plan = scene_plan(params, n_scenes)
     out_dir = Path(out_dir)
     log.info("exporting %d simulated nuScenes scenes x %d samples to %s", len(plan), ns.sim_samples_per_scene, out_dir)

@@ -403,6 +403,6 @@ def ingest_from_params(params: Params, out_dir: str | Path, sim_root: str | Path
                                  "null); run the nuscenes_sim stage first")
     dataroot = Path(ns.dataroot) if ns.dataroot else Path(sim_root)
     source = "nuscenes-lidarseg" if ns.dataroot else "simulated nuScenes-format"
-    return ingest_nuscenes(dataroot, ns.version, out_dir, resolution=params.world.resolution.at(params.scale),
+    return ingest_nuscenes(dataroot, ns.version, out_dir, resolution=params.resolution,
                            preprocess=params.preprocess, split_seed=ns.split_seed, source=source,
                            workers=params.preprocess.workers)

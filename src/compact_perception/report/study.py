@@ -99,7 +99,7 @@ class StudySpec:
         arm_ids = tuple(str(a) for a in study.arm_ids)
         weighting = {a: str(arms[a]["weighting"]) for a in arm_ids}
         single = {a: str(arms[a]["single"]["task"]) for a in arm_ids if weighting[a] == "single"}
-        datasets = tuple(study.datasets.at(params.scale))
+        datasets = tuple(params.study_datasets)
         group = catalog.MODELS[study.base_model].group
         seeds = {ds: tuple(int(k) for k in params.seeds_of(group, ds)) for ds in datasets}
         return cls(datasets, seeds, arm_ids, weighting, single, paper_forms(params))

@@ -250,7 +250,7 @@ def _setup(spec: RunSpec) -> RunState:
     plateau = Plateau(tp.plateau_patience, tp.plateau_factor, recipe.lr_min, recipe.plateau_rule,
                       tp.plateau_threshold)
     de_factor = de_loss_factor(recipe.de_loss) if recipe.de_loss is not None else 1.0
-    stopper = EarlyStop(tp.early_stop_patience.at(spec.params.scale))
+    stopper = EarlyStop(spec.params.patience_of(tp))
     precision = resolve_precision(tp.precision, spec.device)
     scaler = make_grad_scaler(spec.device, precision)
     forward = maybe_compile(model, tp.compile)

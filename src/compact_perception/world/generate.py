@@ -138,9 +138,9 @@ def check_dataset_params(params: Params, dataset_id: str) -> None:
     if dataset_id not in sim_dataset_ids():
         raise ParamsError(f"datasets.{dataset_id}: not a simulated dataset ({', '.join(sim_dataset_ids())})")
     dp = getattr(params.datasets, dataset_id)
-    F = dp.frames.at(params.scale)
+    F = params.frames_of(dataset_id)
     E = params.world.frames_per_episode
-    n = dp.split_ratio.at(params.scale).counts(F)
+    n = params.split_counts_of(dataset_id)
     if min(n.values()) < 1:
         raise ParamsError(f"datasets.{dataset_id}.frames.{params.scale}: {F} frames leave a split empty "
                           f"with split_ratio {n}")
@@ -170,8 +170,7 @@ def plan_episodes(params: Params, dataset_id: str) -> list[dict]:
 
 def episode_count(params: Params, dataset_id: str) -> tuple[int, int]:
     """(frames, episodes) of a dataset, counted without planning the episodes."""
-    dp = getattr(params.datasets, dataset_id)
-    n = dp.split_ratio.at(params.scale).counts(dp.frames.at(params.scale))
+    n = params.split_counts_of(dataset_id)
     E = params.world.frames_per_episode
     return sum(n.values()), sum(-(-n[s] // E) for s in SPLITS)
 
@@ -180,9 +179,9 @@ def iter_episodes(params: Params, dataset_id: str) -> Iterator[dict]:
     """The episodes of :func:`plan_episodes`, in its order, planned as they are needed (a dataset's
     plan is never held in memory whole)."""
     dp = getattr(params.datasets, dataset_id)
-    F = dp.frames.at(params.scale)
+    F = params.frames_of(dataset_id)
     E = params.world.frames_per_episode
-    n = dp.split_ratio.at(params.scale).counts(F)
+    n = params.split_counts_of(dataset_id)
     if dp.split_by == "town":
         towns = {"train": list(dp.train_towns), "val": list(dp.eval_towns), "test": list(dp.eval_towns)}
     else:
@@ -248,7 +247,7 @@ def estimate_disk(params: Params, dataset_id: str) -> tuple[int, int]:
     ep = next(iter_episodes(params, dataset_id))
     sizes = sorted(len(io.npz_bytes({k: v for k, v in rec.items() if k != "meta"}))
                    for rec in render_episode(params.world, ep["town"], ep["seed"], min(SAMPLE_FRAMES, ep["frames"]),
-                                             params.world.resolution.at(params.scale), episode=ep["index"]))
+                                             params.resolution, episode=ep["index"]))
     about = total * (sizes[len(sizes) // 2] + MANIFEST_BYTES_PER_FRAME)
     return about, int(total * 0.8 * sizes[0])
 
@@ -281,7 +280,7 @@ def generate_dataset(params: Params, dataset_id: str, out_dir: str | Path) -> Pa
     if dp.source != "sim":
         raise ParamsError(f"datasets.{dataset_id}.source is {dp.source!r}: the preprocess stage reads authors_root directly")
     wp = params.world
-    S = wp.resolution.at(params.scale)
+    S = params.resolution
     total, n_episodes = episode_count(params, dataset_id)
     out_dir = Path(out_dir)
     check_disk(params, dataset_id, out_dir)

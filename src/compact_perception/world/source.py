@@ -30,7 +30,7 @@ def draw_example(params: Params, dataset_id: str, raw_dir: Path, figure: Path) -
     ep = next(e for e in iter_episodes(params, dataset_id) if e["split"] == "test")
     rec = None
     for rec in render_episode(params.world, ep["town"], ep["seed"], min(2, ep["frames"]),
-                              params.world.resolution.at(params.scale), episode=ep["index"]):
+                              params.resolution, episode=ep["index"]):
         pass
     assert rec is not None
     save_frame_figure(rec, figure, params.world.lidar.range_m, title=f"dataset {dataset_id}: {rec['meta']}")
