@@ -1,5 +1,5 @@
 """The census of the training loop's own step: aten ops and host syncs per step, per model and per
-loss weighting (:mod:`compact_perception.training.census`), and on a GPU the samples/s of one run.
+loss weighting (:mod:`compact_perception.learning.training.census`), and on a GPU the samples/s of one run.
 
     .venv/bin/python benchmarks/bench_census.py [--size 32] [--batch 6] [--steps 3] [--precision fp32]
         [--only compact_15l/uw ...] [--sites] [--time-steps 10] [--side-by-side 4 12]
@@ -38,13 +38,13 @@ import torch  # noqa: E402
 from compact_perception.core import catalog  # noqa: E402
 from compact_perception.core.cache import read_meta  # noqa: E402
 from compact_perception.core.config import load_params  # noqa: E402
-from compact_perception.data import make_loader  # noqa: E402
-from compact_perception.plan import planned_run  # noqa: E402
-from compact_perception.training import distributed as ddp  # noqa: E402
-from compact_perception.training.census import Census, optimizer_step_counters  # noqa: E402
-from compact_perception.training.epoch import epoch_means, train_step  # noqa: E402
-from compact_perception.training.state import RunSpec  # noqa: E402
-from compact_perception.training.train import _setup  # noqa: E402
+from compact_perception.data.loader import make_loader  # noqa: E402
+from compact_perception.learning.plan import planned_run  # noqa: E402
+from compact_perception.learning.training import distributed as ddp  # noqa: E402
+from compact_perception.learning.training.census import Census, optimizer_step_counters  # noqa: E402
+from compact_perception.learning.training.epoch import epoch_means, train_step  # noqa: E402
+from compact_perception.learning.training.state import RunSpec  # noqa: E402
+from compact_perception.learning.training.train import _setup  # noqa: E402
 
 #: The compact 15L network with each study arm whose loss weighting no model's own recipe uses.
 ARMS: tuple[str, ...] = ("gradnorm", "uw", "dwa", "pcgrad", "cagrad", "single_ss")

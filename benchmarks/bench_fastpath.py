@@ -36,11 +36,11 @@ from typing import Any
 import torch
 
 from compact_perception.core.config import load_params
-from compact_perception.models import build_model
-from compact_perception.training.precision import (autocast_context, batch_to_channels_last, cpu_has_native_bf16,
+from compact_perception.learning.models import build_model
+from compact_perception.learning.training.precision import (autocast_context, batch_to_channels_last, cpu_has_native_bf16,
                                           float_outputs, make_grad_scaler, maybe_compile, resolve_precision,
                                           to_channels_last)
-from compact_perception.weighting import build_weighting
+from compact_perception.learning.weighting import build_weighting
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_train import synthetic_batch  # noqa: E402
@@ -115,9 +115,9 @@ def train_figures(args: argparse.Namespace, device: torch.device, size: int, con
 
 
 def onnx_figures(args: argparse.Namespace) -> dict[str, float]:
-    from compact_perception.onnx_export import export_onnx, onnxruntime_latency
-    from compact_perception.models import DATASET_SPECS
-    from compact_perception.efficiency import dummy_batch, measure_fps
+    from compact_perception.learning.onnx_export import export_onnx, onnxruntime_latency
+    from compact_perception.learning.models import DATASET_SPECS
+    from compact_perception.evaluation.efficiency import dummy_batch, measure_fps
 
     spec = DATASET_SPECS[args.dataset]
     torch.manual_seed(0)

@@ -9,7 +9,7 @@ precision with channels-last, CUDA graphs of float32 and of the fastest precisio
 normalisation folded into the convolutions (float32, with and without a CUDA graph). On a
 machine without a GPU the same code path runs on the CPU (float32, bf16 autocast,
 channels-last; CUDA graphs need CUDA and are skipped) and the output says "no GPU: CPU figures".
-Timing: :func:`compact_perception.timing.benchmark_variants` (warm-up calls untimed, the device
+Timing: :func:`compact_perception.evaluation.timing.benchmark_variants` (warm-up calls untimed, the device
 synchronised before and after every timed call, median latency); each variant's outputs are
 compared with float32 eager (max abs difference).
 """
@@ -21,10 +21,10 @@ import time
 
 import torch
 
-from compact_perception.models import DATASET_SPECS, build_model
-from compact_perception.training.precision import cpu_has_native_bf16
-from compact_perception.efficiency import device_name, dummy_batch
-from compact_perception.timing import Variant, benchmark_variants, default_variants
+from compact_perception.learning.models import DATASET_SPECS, build_model
+from compact_perception.learning.training.precision import cpu_has_native_bf16
+from compact_perception.evaluation.efficiency import device_name, dummy_batch
+from compact_perception.evaluation.timing import Variant, benchmark_variants, default_variants
 
 
 def main() -> None:

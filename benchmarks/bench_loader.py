@@ -3,7 +3,7 @@
     .venv/bin/python benchmarks/bench_loader.py [--cache DIR] [--frames 240] [--size 128]
         [--workers 0,2,4] [--gpu-tflops 100] [--util 0.4] [--quick]
 
-It measures the training loader (:func:`compact_perception.data.make_loader`, batch 6, shuffled,
+It measures the training loader (:func:`compact_perception.data.loader.make_loader`, batch 6, shuffled,
 as a training run opens it) in samples/s over one epoch of a cache at 128 px (built from
 tests/synthetic.py's ``make_cache`` unless ``--cache`` names one), with 0, 2 and 4 worker
 processes and pinned memory off and on (pinning needs CUDA; without it torch leaves it off), beside
@@ -36,8 +36,8 @@ from torch.utils.flop_counter import FlopCounterMode  # noqa: E402
 
 from compact_perception.core import catalog  # noqa: E402
 from compact_perception.core.cache import read_meta  # noqa: E402
-from compact_perception.data import make_loader  # noqa: E402
-from compact_perception.training.epoch import train_step  # noqa: E402
+from compact_perception.data.loader import make_loader  # noqa: E402
+from compact_perception.learning.training.epoch import train_step  # noqa: E402
 
 from gpu_check import build_run, one_batch, params_for  # noqa: E402  (the run as the loop sets it up)
 

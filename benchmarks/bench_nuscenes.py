@@ -1,7 +1,7 @@
 """Ingestion speed of the nuScenes path (paper IV-B) at 128 px, projected to real trainval.
 
 Exports a small simulated nuScenes-format dataroot (the world's ``render_episode``), then runs
-the stage's own function, :func:`compact_perception.nuscenes.ingest.ingest_nuscenes`, end to end
+the stage's own function, :func:`compact_perception.data.nuscenes.ingest.ingest_nuscenes`, end to end
 (devkit load, input check, ingestion, cache write) at ``--size`` px (default 128, the paper's)
 with the stage's workers (``preprocess.workers`` if the ingest takes a ``workers`` argument,
 else the one process it uses), and times ``ingest_sample`` per sample.
@@ -32,8 +32,8 @@ import cv2
 import numpy as np
 
 from compact_perception.core.config import load_params
-from compact_perception.nuscenes.export import export_nuscenes_sim
-from compact_perception.nuscenes.ingest import ingest_nuscenes, ingest_sample, load_nuscenes, plan_ingestion
+from compact_perception.data.nuscenes.export import export_nuscenes_sim
+from compact_perception.data.nuscenes.ingest import ingest_nuscenes, ingest_sample, load_nuscenes, plan_ingestion
 
 TRAINVAL_KEY_FRAMES = 34149  #: key-frame samples of nuScenes v1.0-trainval (850 scenes)
 ROOT = Path(__file__).resolve().parents[1]

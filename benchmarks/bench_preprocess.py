@@ -23,9 +23,9 @@ import numpy as np
 
 from compact_perception.core.cache import read_cache, write_cache
 from compact_perception.core.classes import BEV_NAMES, CARLA_NAMES
-from compact_perception.data import make_loader
-from compact_perception.geometry import VIEWS
-from compact_perception.lidar import topview_15l
+from compact_perception.data.loader import make_loader
+from compact_perception.data.geometry import VIEWS
+from compact_perception.data.lidar import topview_15l
 
 
 def random_cloud(n: int, seed: int = 0) -> np.ndarray:

@@ -28,7 +28,7 @@ import yaml
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_train import synthetic_batch  # noqa: E402
 
-from compact_perception.models import build_model  # noqa: E402
+from compact_perception.learning.models import build_model  # noqa: E402
 
 
 def lock_rewrite_seconds(path: Path, repeats: int) -> tuple[int, float]:

@@ -15,8 +15,8 @@ from contextlib import nullcontext
 import torch
 
 from compact_perception.core.config import load_params
-from compact_perception.models import build_model
-from compact_perception.weighting import build_weighting
+from compact_perception.learning.models import build_model
+from compact_perception.learning.weighting import build_weighting
 
 
 def synthetic_batch(model, dataset_id: str, batch: int, size: int, device, dtype) -> dict:

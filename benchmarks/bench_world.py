@@ -9,8 +9,8 @@ import argparse
 import time
 
 from compact_perception.core.config import load_params
-from compact_perception.world.generate import render_episode
-from compact_perception.world.town import build_town
+from compact_perception.data.world.generate import render_episode
+from compact_perception.data.world.town import build_town
 
 
 def fps(params, town: str, size: int, frames: int) -> float:

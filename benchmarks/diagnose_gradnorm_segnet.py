@@ -33,13 +33,13 @@ from pathlib import Path
 import torch
 
 from compact_perception.core.config import Scaled, load_params
-from compact_perception.data import make_loader, to_device
+from compact_perception.data.loader import make_loader, to_device
 from compact_perception.core.determinism import set_threads
-from compact_perception.metrics import class_confusion, class_iou, compute_metrics_per_sample, mean_iou
-from compact_perception.models import build_model
-from compact_perception.plan import planned_run
-from compact_perception.training.train import run_seed, seed_everything, train_run
-from compact_perception.weighting.gradnorm import GradNormWeighting
+from compact_perception.learning.metrics import class_confusion, class_iou, compute_metrics_per_sample, mean_iou
+from compact_perception.learning.models import build_model
+from compact_perception.learning.plan import planned_run
+from compact_perception.learning.training.train import run_seed, seed_everything, train_run
+from compact_perception.learning.weighting.gradnorm import GradNormWeighting
 
 log = logging.getLogger("diagnose_gradnorm_segnet")
 MODEL = "gradnorm_segnet"

@@ -56,11 +56,11 @@ from torch import Tensor, nn  # noqa: E402
 from compact_perception.core.config import load_params  # noqa: E402
 from compact_perception.core.determinism import set_threads  # noqa: E402
 from compact_perception.core.machine import cpu_name  # noqa: E402
-from compact_perception.data import make_loader, to_device  # noqa: E402
-from compact_perception.losses import de_loss_factor, scale_de_loss  # noqa: E402
-from compact_perception.models import DATASET_SPECS, build_model, lidar_channels  # noqa: E402
-from compact_perception.training.provenance import source_fingerprint  # noqa: E402
-from compact_perception.weighting import LossWeighting, build_weighting  # noqa: E402
+from compact_perception.data.loader import make_loader, to_device  # noqa: E402
+from compact_perception.learning.losses import de_loss_factor, scale_de_loss  # noqa: E402
+from compact_perception.learning.models import DATASET_SPECS, build_model, lidar_channels  # noqa: E402
+from compact_perception.learning.training.provenance import source_fingerprint  # noqa: E402
+from compact_perception.learning.weighting import LossWeighting, build_weighting  # noqa: E402
 
 DEFAULT_MODELS = ["compact_15l", "compact_15l_mgn_authors", "polarnet", "gradnorm_segnet", "chen_bev"]
 

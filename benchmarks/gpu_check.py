@@ -6,7 +6,7 @@ On a CUDA device (the default) it runs, at the paper's 128 px:
 
 - ``train_step``: training steps of every registered model (core/catalog.py) in fp32, bf16 and
   fp16 (fp16 with the GradScaler), through the project's own step
-  (:func:`compact_perception.training.epoch.train_step` on a run built by the training loop's
+  (:func:`compact_perception.learning.training.epoch.train_step` on a run built by the training loop's
   setup step); compact_15l_mgn_authors (MGN, ``authors_mode: true``) does its weight update under
   autocast on the last step and the check asserts the weights stay finite and moved, unless the
   GradScaler skipped that step (the update is then dropped with it, and the row says so);
@@ -19,8 +19,8 @@ On a CUDA device (the default) it runs, at the paper's 128 px:
   nccl (gloo on a CPU), one per loss weighting of the registry, through the gradient / weight /
   scalar all-reduces of training/distributed.py;
 - ``fps``: Table III's batch-1 inference FPS with device synchronisation, as the benchmark stage
-  measures it (:func:`compact_perception.efficiency.measure_model`) and for each variant
-  (:func:`compact_perception.timing.benchmark_variants`: fp32, fp16, bf16, channels-last, CUDA graphs).
+  measures it (:func:`compact_perception.evaluation.efficiency.measure_model`) and for each variant
+  (:func:`compact_perception.evaluation.timing.benchmark_variants`: fp32, fp16, bf16, channels-last, CUDA graphs).
 
 It prints one table (check, device, precision, seconds, result) and exits 1 if any check failed.
 ``--device cpu --size 32`` runs the same code on a CPU (one step each, gloo); a precision the CPU
@@ -51,13 +51,13 @@ import yaml  # noqa: E402
 
 from compact_perception.core import catalog  # noqa: E402
 from compact_perception.core.config import load_params  # noqa: E402
-from compact_perception.data import make_loader  # noqa: E402
-from compact_perception.training import distributed as ddp  # noqa: E402
-from compact_perception.training.epoch import train_step  # noqa: E402
-from compact_perception.training.precision import cpu_has_native_bf16  # noqa: E402
-from compact_perception.plan import planned_run  # noqa: E402
-from compact_perception.training.state import RunSpec  # noqa: E402
-from compact_perception.training.train import _setup  # noqa: E402  (the loop's own setup step)
+from compact_perception.data.loader import make_loader  # noqa: E402
+from compact_perception.learning.training import distributed as ddp  # noqa: E402
+from compact_perception.learning.training.epoch import train_step  # noqa: E402
+from compact_perception.learning.training.precision import cpu_has_native_bf16  # noqa: E402
+from compact_perception.learning.plan import planned_run  # noqa: E402
+from compact_perception.learning.training.state import RunSpec  # noqa: E402
+from compact_perception.learning.training.train import _setup  # noqa: E402  (the loop's own setup step)
 
 PRECISIONS = ("fp32", "bf16", "fp16")
 SKIP_CUDA = "skipped: needs CUDA"
@@ -191,8 +191,8 @@ INTERRUPTED_RUN = textwrap.dedent("""
     from pathlib import Path
     import pipeline  # noqa: F401  the stage package's numeric pins, as the resuming stage has them
     from compact_perception.core.config import load_params
-    from compact_perception.plan import planned_run
-    from compact_perception.training.train import train_run
+    from compact_perception.learning.plan import planned_run
+    from compact_perception.learning.training.train import train_run
     params = load_params(sys.argv[1])
     run = planned_run(params, "A", "compact_15l", 0).moved(cache_dir=Path(sys.argv[2]), run_dir=Path(sys.argv[3]))
     try:
@@ -326,9 +326,9 @@ def check_ddp(rows, device, cache, args) -> None:
 
 # ----------------------------------------------------------------------------- Table III FPS
 def check_fps(rows, device, args) -> None:
-    from compact_perception.models import DATASET_SPECS, build_model
-    from compact_perception.efficiency import dummy_batch, measure_model
-    from compact_perception.timing import benchmark_variants, default_variants
+    from compact_perception.learning.models import DATASET_SPECS, build_model
+    from compact_perception.evaluation.efficiency import dummy_batch, measure_model
+    from compact_perception.evaluation.timing import benchmark_variants, default_variants
 
     params = load_params(ROOT / "params.yaml")
     warmup, runs = (params.benchmark.warmup, params.benchmark.runs) if device.type == "cuda" else (1, 3)

@@ -35,7 +35,7 @@ def start(params_path: str | Path = "params.yaml", workers: tuple[str, ...] = ()
 
 
 def worker_logging() -> None:
-    """In a stage's worker process (:mod:`compact_perception.training.parallel`): the stage's
+    """In a stage's worker process (:mod:`compact_perception.learning.training.parallel`): the stage's
     logging. The worker gets the stage's validated params and its runs pickled (audited like the
     stage's when the audit is on: core.params_audit), never a file to read again."""
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")

@@ -23,11 +23,11 @@ import torch
 from compact_perception.core import io
 from compact_perception.core.catalog import dataset_ids, model_ids, sim_dataset_ids
 from compact_perception.core.errors import os_error_line
-from compact_perception.models import DATASET_SPECS, build_model
-from compact_perception.efficiency import (CPU_MEMORY_METHOD, CUDA_MEMORY_METHOD, device_name,
+from compact_perception.learning.models import DATASET_SPECS, build_model
+from compact_perception.evaluation.efficiency import (CPU_MEMORY_METHOD, CUDA_MEMORY_METHOD, device_name,
                                                    dummy_batch, measure_fps, measure_model, measure_onnx)
 
-from compact_perception.timing import table3_inference
+from compact_perception.evaluation.timing import table3_inference
 
 from ._common import start
 

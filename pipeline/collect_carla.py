@@ -40,7 +40,7 @@ def main(argv: list[str] | None = None) -> int:
     host, port, root = args.host or cs.host, args.port if args.port is not None else cs.port, args.root or cs.root
     if not 1 <= port <= 65535:
         sys.exit(f"error: --port {port}: expected 1..65535")
-    from compact_perception.carla.collector import CarlaError, collect, import_client
+    from compact_perception.data.carla.collector import CarlaError, collect, import_client
 
     try:
         n = collect(import_client(), params, args.dataset, root, host, port, restart=args.restart)

@@ -1,7 +1,7 @@
 """DVC stage evaluate@<dataset>: the floor and every run of one dataset on its test split.
 
-First the trivial predictors (compact_perception.floor, SPEC 8: fitted on the train split) into
-results/<ds>/floor_*/; then every run of compact_perception.plan (each model at its seeds, the
+First the trivial predictors (compact_perception.evaluation.floor, SPEC 8: fitted on the train split) into
+results/<ds>/floor_*/; then every run of compact_perception.learning.plan (each model at its seeds, the
 study's arms) from its best checkpoint, frame by frame, in ``train.parallel_runs`` worker
 processes, into results/<ds>/<model>/seed<k>/metrics.json (with its margin over the floor) and
 data/eval/<ds>/<model>/seed<k>/.
@@ -22,10 +22,10 @@ from compact_perception.core import io
 from compact_perception.core.config import Params
 from compact_perception.core.errors import RunError, os_error_line
 from compact_perception.core.layout import evaluation_folders, floor_paths
-from compact_perception.evaluate import evaluate_floors, evaluate_run, read_best
-from compact_perception.floor import TRIVIAL
-from compact_perception.plan import PlannedRun, dataset_runs
-from compact_perception.training.parallel import Job, JobError, run_jobs
+from compact_perception.evaluation.evaluate import evaluate_floors, evaluate_run, read_best
+from compact_perception.evaluation.floor import TRIVIAL
+from compact_perception.learning.plan import PlannedRun, dataset_runs
+from compact_perception.learning.training.parallel import Job, JobError, run_jobs
 
 from ._common import start, worker_logging
 

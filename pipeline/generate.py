@@ -2,7 +2,7 @@
 ``reports/figures/world_<ds>.png`` (SPEC 3.1).
 
 Thin wrapper: parse args, load params, look ``datasets.<ds>.source`` up
-(:mod:`compact_perception.sources`) and call it: ``sim`` renders the set with the embedded world,
+(:mod:`compact_perception.data.sources`) and call it: ``sim`` renders the set with the embedded world,
 ``authors`` checks the authors' release and writes a manifest pointing at it, ``carla`` checks the
 recording at ``datasets.<ds>.carla.root`` (pipeline.collect_carla) and copies it into data/raw/<ds>.
 """
@@ -16,7 +16,7 @@ from pathlib import Path
 from compact_perception.core.catalog import sim_dataset_ids
 from compact_perception.core.config import ParamsError
 from compact_perception.core.errors import RecordError, RunError, os_error_line
-from compact_perception.sources import data_source
+from compact_perception.data.sources import data_source
 
 from ._common import start
 

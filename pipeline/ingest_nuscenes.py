@@ -1,7 +1,7 @@
 """Stage ingest_nuscenes: a nuScenes-lidarseg dataroot (real, or the simulated export) ->
 data/cache/nuscenes/ (paper section IV-B, SPEC 3.2).
 
-Thin wrapper around :func:`compact_perception.nuscenes.ingest.ingest_from_params`. Missing or
+Thin wrapper around :func:`compact_perception.data.nuscenes.ingest.ingest_from_params`. Missing or
 corrupt input (dataroot, lidarseg folder, sweeps, images, label files; a truncated sweep or label
 .bin) stops with a one-line message naming it before anything is written (exit status 1).
 """
@@ -13,7 +13,7 @@ import sys
 from ._common import start
 
 from compact_perception.core.errors import os_error_line
-from compact_perception.nuscenes.ingest import NuScenesInputError, ingest_from_params
+from compact_perception.data.nuscenes.ingest import NuScenesInputError, ingest_from_params
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -4,7 +4,7 @@ Only simulates when ``datasets.nuscenes.dataroot`` is null (SPEC 3.2); with a re
 writes only a manifest pointing at it (its DVC output), and a dataroot that is not there (no
 folder, no ``<version>`` table folder) is a one-line error naming the key and the path, exit
 status 1, nothing written. Thin wrapper around
-:func:`compact_perception.nuscenes.export.export_nuscenes_sim`.
+:func:`compact_perception.data.nuscenes.export.export_nuscenes_sim`.
 """
 from __future__ import annotations
 
@@ -16,8 +16,8 @@ from ._common import start
 
 from compact_perception.core import io
 from compact_perception.core.errors import os_error_line
-from compact_perception.nuscenes import dataroot_problem
-from compact_perception.nuscenes.export import export_nuscenes_sim
+from compact_perception.data.nuscenes import dataroot_problem
+from compact_perception.data.nuscenes.export import export_nuscenes_sim
 
 
 def main(argv: list[str] | None = None) -> int:

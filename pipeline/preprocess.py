@@ -1,6 +1,6 @@
 """Stage preprocess@<ds>: data/raw/<ds>/ (or the authors' dataset) -> data/cache/<ds>/ (SPEC 4).
 
-Thin wrapper around :func:`compact_perception.preprocess.preprocess_dataset`; also draws
+Thin wrapper around :func:`compact_perception.data.preprocess.preprocess_dataset`; also draws
 ``reports/figures/lidar_preprocessing_<ds>.png`` (Fig. 5-like).
 """
 from __future__ import annotations
@@ -12,7 +12,7 @@ from pathlib import Path
 from compact_perception.core.cache import CacheError
 from compact_perception.core.catalog import sim_dataset_ids
 from compact_perception.core.errors import RecordError, os_error_line
-from compact_perception.preprocess import preprocess_dataset
+from compact_perception.data.preprocess import preprocess_dataset
 
 from ._common import start
 

@@ -1,4 +1,4 @@
-"""DVC stage train@<dataset>: every run of one dataset (compact_perception.plan: each model of
+"""DVC stage train@<dataset>: every run of one dataset (compact_perception.learning.plan: each model of
 ``model_ids`` at its seeds, and the study's arms where the dataset is a study dataset), trained
 side by side in ``train.parallel_runs`` worker processes into runs/<dataset>/. A run already
 complete for the same code, params and data is skipped; a killed one resumes.
@@ -20,10 +20,10 @@ from compact_perception.core.cache import CacheError
 from compact_perception.core.catalog import dataset_ids, model_ids
 from compact_perception.core.config import Params, ParamsError
 from compact_perception.core.errors import RunError, os_error_line
-from compact_perception.plan import PlannedRun, dataset_runs, recipe_of
-from compact_perception.training.parallel import Job, JobError, run_jobs
-from compact_perception.training.train import train_run
-from compact_perception.weighting import weighting_settings
+from compact_perception.learning.plan import PlannedRun, dataset_runs, recipe_of
+from compact_perception.learning.training.parallel import Job, JobError, run_jobs
+from compact_perception.learning.training.train import train_run
+from compact_perception.learning.weighting import weighting_settings
 
 from ._common import start, worker_logging
 

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from compact_perception.core.classes import BEV_NAMES, CARLA_NAMES, CARLA_PALETTE
-from compact_perception.geometry import VIEWS
+from compact_perception.data.geometry import VIEWS
 from compact_perception.core.io import write_json, write_npz
 
 

@@ -40,7 +40,7 @@ COMPACT: tuple[str, ...] = tuple(m for m in catalog.compact_model_ids() if m in 
 BASELINES: tuple[str, ...] = tuple(m for m in MODELS if catalog.MODELS[m].group == "baseline")
 MGN: tuple[str, ...] = ("compact_15l_mgn", "compact_15l_mgn_authors")
 SEEDS: tuple[int, ...] = (0, 1, 2)
-#: The floor's trivial predictors (compact_perception.floor.TRIVIAL) and their test means: the
+#: The floor's trivial predictors (compact_perception.evaluation.floor.TRIVIAL) and their test means: the
 #: per-pixel one the better on MAE_DE, IoU_SS and IoU_LS, the global one on IoU_BEVP (floor_of takes
 #: the better per metric): floor 0.30 / 0.30 / 0.20 / 0.35, TM of each 2.50 and 2.60.
 FLOOR_BASES: dict[str, dict[str, float]] = {

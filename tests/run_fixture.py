@@ -1,4 +1,4 @@
-"""A planned run (compact_perception.plan) in a test's folders: tests train and score runs as the
+"""A planned run (compact_perception.learning.plan) in a test's folders: tests train and score runs as the
 stages do, through ``train_run(params, run)`` and ``evaluate_run(params, run)``."""
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any, Optional
 
 from compact_perception.core.layout import RunPaths
-from compact_perception.plan import PlannedRun, planned_run
+from compact_perception.learning.plan import PlannedRun, planned_run
 
 PATH_FIELDS = frozenset(f.name for f in dataclasses.fields(RunPaths))
 

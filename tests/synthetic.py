@@ -7,7 +7,7 @@ import numpy as np
 
 from compact_perception.core.cache import write_cache
 from compact_perception.core.classes import BEV_NAMES, CARLA_NAMES, NUSCENES_NAMES
-from compact_perception.geometry import VIEWS
+from compact_perception.data.geometry import VIEWS
 
 
 def synthetic_frame(rng: np.random.Generator, size: int, n_cls: int, n_bev: int, dvs: bool) -> dict:

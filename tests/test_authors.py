@@ -1,4 +1,4 @@
-"""The authors' released CARLA dataset, read as released (compact_perception.authors).
+"""The authors' released CARLA dataset, read as released (compact_perception.data.authors).
 
 The fixture (tests/authors_fixture.py) is written in the release's own layout; the real
 stages run in-process (pipeline.generate.main, pipeline.preprocess.main) with a params file
@@ -17,7 +17,7 @@ import pytest
 import yaml
 
 import authors_fixture as fx
-from compact_perception.authors import ingest_authors, plan_authors
+from compact_perception.data.authors import ingest_authors, plan_authors
 from compact_perception.core.cache import read_cache
 from compact_perception.core.config import ParamsError, parse_params
 from compact_perception.core.errors import RecordError
@@ -92,9 +92,9 @@ def test_authors_splits_is_required_and_checked(params_dict: dict) -> None:
 
 
 def test_no_import_cycle(root: Path) -> None:
-    code = ("import sys, compact_perception.authors; "
-            "assert 'compact_perception.preprocess' not in sys.modules, 'authors imports preprocess'; "
-            "from compact_perception.preprocess import RecordError; "
+    code = ("import sys, compact_perception.data.authors; "
+            "assert 'compact_perception.data.preprocess' not in sys.modules, 'authors imports preprocess'; "
+            "from compact_perception.data.preprocess import RecordError; "
             "from compact_perception.core.errors import RecordError as E; assert RecordError is E")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=root, timeout=60)
     assert r.returncode == 0, r.stderr

@@ -12,10 +12,10 @@ import torch
 
 from compact_perception.core.cache import read_split
 from compact_perception.core.config import parse_params
-from compact_perception.data import make_loader
-from compact_perception.evaluate import _score_frames
-from compact_perception.floor import fit_trivial
-from compact_perception.models import build_model
+from compact_perception.data.loader import make_loader
+from compact_perception.evaluation.evaluate import _score_frames
+from compact_perception.evaluation.floor import fit_trivial
+from compact_perception.learning.models import build_model
 
 from synthetic import make_cache
 

@@ -1,4 +1,4 @@
-"""Recording from CARLA (compact_perception.carla, pipeline.collect_carla) without a server.
+"""Recording from CARLA (compact_perception.data.carla, pipeline.collect_carla) without a server.
 
 The conversions are checked against buffers built from CARLA's documented formats (BGRA
 images, the 24-bit depth encoding, tags in red, packed DVS events, semantic LiDAR points in
@@ -18,15 +18,15 @@ import pytest
 import yaml
 
 import carla_fake
-from compact_perception.carla import bev, convert
-from compact_perception.carla.collector import CarlaError, SensorQueues, collect, connect, import_client
-from compact_perception.carla.recording import Recording, check_recording, import_recording, plan_document
-from compact_perception.carla.rig import sensor_specs
+from compact_perception.data.carla import bev, convert
+from compact_perception.data.carla.collector import CarlaError, SensorQueues, collect, connect, import_client
+from compact_perception.data.carla.recording import Recording, check_recording, import_recording, plan_document
+from compact_perception.data.carla.rig import sensor_specs
 from compact_perception.core.classes import BEV_NAMES, CARLA_PALETTE, TAG
 from compact_perception.core.config import ParamsError, load_params
 from compact_perception.core.errors import RecordError
-from compact_perception.geometry import topview_center, topview_index
-from compact_perception.preprocess import preprocess_sim
+from compact_perception.data.geometry import topview_center, topview_index
+from compact_perception.data.preprocess import preprocess_sim
 
 ROOT = Path(__file__).resolve().parents[1]
 

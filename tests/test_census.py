@@ -7,7 +7,7 @@ from pathlib import Path
 
 import torch
 
-from compact_perception.training.census import Census, optimizer_step_counters
+from compact_perception.learning.training.census import Census, optimizer_step_counters
 
 
 def test_every_kind_of_host_read_counts_once():
@@ -71,13 +71,13 @@ import pytest  # noqa: E402
 from compact_perception.core import catalog  # noqa: E402
 from compact_perception.core.config import parse_params  # noqa: E402
 from compact_perception.core.errors import NonFinite  # noqa: E402
-from compact_perception.data import make_loader  # noqa: E402
-from compact_perception.plan import recipe_of  # noqa: E402
-from compact_perception.training import distributed as ddp  # noqa: E402
-from compact_perception.training import train as train_mod  # noqa: E402
-from compact_perception.training.epoch import EpochSums, epoch_means, train_step  # noqa: E402
-from compact_perception.training.state import RunSpec  # noqa: E402
-from compact_perception.weighting import WEIGHTINGS  # noqa: E402
+from compact_perception.data.loader import make_loader  # noqa: E402
+from compact_perception.learning.plan import recipe_of  # noqa: E402
+from compact_perception.learning.training import distributed as ddp  # noqa: E402
+from compact_perception.learning.training import train as train_mod  # noqa: E402
+from compact_perception.learning.training.epoch import EpochSums, epoch_means, train_step  # noqa: E402
+from compact_perception.learning.training.state import RunSpec  # noqa: E402
+from compact_perception.learning.weighting import WEIGHTINGS  # noqa: E402
 
 from repo_params import cap_epochs  # noqa: E402
 from run_fixture import run_in  # noqa: E402
@@ -163,7 +163,7 @@ def test_fp16_reads_only_the_grad_scaler(tmp_path, params_dict):
         train_step(run, batch, 0, 3)
     assert c.syncs >= 1
     assert all("training/epoch.py" in site for site in c.sites), c.summary()
-    from compact_perception.training import epoch as epoch_mod
+    from compact_perception.learning.training import epoch as epoch_mod
 
     text = Path(epoch_mod.__file__).read_text().splitlines()
     lines = [text[int(site.rsplit(":", 1)[1]) - 1] for site in c.sites]
@@ -194,7 +194,7 @@ def test_a_nan_loss_mid_epoch_stops_at_the_last_step_before_its_update(tmp_path,
     """A nan loss at step 1 of 3 is not read there; the epoch's last step reads when each loss was
     first non-finite, names the task that was (as a check of every step would: ss, though every
     loss is nan by then) and stops before its weighting update and optimiser step."""
-    from compact_perception.training import epoch as epoch_mod
+    from compact_perception.learning.training import epoch as epoch_mod
 
     params = _tiny(params_dict, "fp32")
     cache = make_cache(tmp_path / "cache", size=16, counts=(2, 1, 1))
@@ -233,7 +233,7 @@ def test_non_finite_weights_are_found_at_the_epoch_read(tmp_path, params_dict):
 
 # ----------------------------------------------------------------------------- the baselines' losses
 def _labelled_case(views: int | None, seed: int = 0):
-    from compact_perception.data import one_hot
+    from compact_perception.data.loader import one_hot
 
     g = torch.Generator().manual_seed(seed)
     shape = (3, views, 8, 8) if views else (3, 8, 8)
@@ -249,8 +249,8 @@ def test_losses_with_host_labelled_pixels_are_the_mask_path_bit_for_bit():
     """Cross entropy and Lovasz-softmax given the labelled pixels found on the host
     (data.labelled_pixels) compute the same values and gradients, bit for bit, as with the boolean
     mask they take on the device, without reading the device."""
-    from compact_perception import losses as L
-    from compact_perception.data import labelled_pixels
+    from compact_perception.learning import losses as L
+    from compact_perception.data.loader import labelled_pixels
 
     for seed in range(3):
         labels, target, logits = _labelled_case(None, seed)
@@ -276,7 +276,7 @@ def test_losses_with_host_labelled_pixels_are_the_mask_path_bit_for_bit():
 
 
 def test_the_loader_finds_the_labelled_pixels_a_model_asks_for(tmp_path):
-    from compact_perception.data import Labelled, to_device
+    from compact_perception.data.loader import Labelled, to_device
 
     cache = make_cache(tmp_path / "cache", size=16, counts=(2, 1, 1))
     plain = next(iter(make_loader(cache, "train", 15, 2)))

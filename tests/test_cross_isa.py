@@ -89,8 +89,8 @@ import sys
 from compact_perception.core.determinism import pin_numeric_libraries
 pin_numeric_libraries()
 import numpy as np, pandas as pd, torch, json
-from compact_perception.evaluate import summarise_depth
-from compact_perception.metrics import depth_errors_per_sample
+from compact_perception.evaluation.evaluate import summarise_depth
+from compact_perception.learning.metrics import depth_errors_per_sample
 rng = np.random.default_rng(5)                        # numpy's generators: the same numbers on every kernel
 gt = torch.from_numpy(rng.random((40, 4, 1, 32, 32)).astype(np.float32))
 pred = gt + torch.from_numpy((0.3 * rng.standard_normal((40, 4, 1, 32, 32))).astype(np.float32))  # some > 1, < 0
@@ -114,7 +114,7 @@ def test_depth_metrics_reduction_is_the_same_on_another_machine(root):
     mean and variance over frames) write the same bytes under another machine's kernels: the
     per-frame errors come from one frame at a time in float64 and the summary is rounded to
     DEPTH_DIGITS significant digits, below which a last-bit difference of a sum cannot reach."""
-    from compact_perception.evaluate import DEPTH_DIGITS, _round_sig
+    from compact_perception.evaluation.evaluate import DEPTH_DIGITS, _round_sig
 
     here = _depth_summary(root, {})
     other = _depth_summary(root, OTHER_MACHINE)

@@ -194,7 +194,7 @@ def _eval_tree(tmp_path: Path) -> Path:
     (seeds: [0])."""
     import torch
 
-    from compact_perception.models import build_model
+    from compact_perception.learning.models import build_model
 
     make_cache(tmp_path / "data" / "cache" / "A", size=16, counts=(3, 2, 2))
     run = tmp_path / "runs" / "A" / "compact_1l" / "seed0"
@@ -237,7 +237,7 @@ def test_missing_checkpoint_stops_evaluate(tmp_path, monkeypatch):
 @pytest.fixture(scope="module")
 def nus_root(tmp_path_factory) -> tuple[Path, dict]:
     """A tiny simulated nuScenes-format dataroot (fabricated episodes, as in test_nuscenes)."""
-    from compact_perception.nuscenes.export import export_nuscenes_sim
+    from compact_perception.data.nuscenes.export import export_nuscenes_sim
     from test_nuscenes import _params, fake_episode
 
     d = repo_params_dict()
@@ -261,7 +261,7 @@ def _ingest(tmp_path: Path, nus_root: tuple[Path, dict]) -> tuple[Path, Path, Pa
 
 
 def test_truncated_sweep_stops_ingest(tmp_path, nus_root):
-    from compact_perception.nuscenes import LIDAR_CHANNEL
+    from compact_perception.data.nuscenes import LIDAR_CHANNEL
     from pipeline.ingest_nuscenes import main
 
     root, params, out = _ingest(tmp_path, nus_root)
@@ -274,7 +274,7 @@ def test_truncated_sweep_stops_ingest(tmp_path, nus_root):
 
 def test_sweep_cut_at_a_point_boundary_stops_ingest(tmp_path, nus_root):
     """Whole points missing: the sweep still reshapes, the label count no longer matches."""
-    from compact_perception.nuscenes import LIDAR_CHANNEL
+    from compact_perception.data.nuscenes import LIDAR_CHANNEL
     from pipeline.ingest_nuscenes import main
 
     root, params, out = _ingest(tmp_path, nus_root)
@@ -328,7 +328,7 @@ def _disk_full(*_a, **_k):
 def test_disk_full_stops_generate_with_one_line(tmp_path, monkeypatch):
     """Generation that cannot write a frame: one line naming the file and the reason, and no
     dataset folder left behind (it is built in a temporary folder)."""
-    from compact_perception.world import generate as gen
+    from compact_perception.data.world import generate as gen
     from pipeline.generate import main
 
     params = _tiny_sim_params(tmp_path)

@@ -13,11 +13,11 @@ from torch import nn
 pytest.importorskip("onnxruntime")
 pytest.importorskip("onnx")
 
-from compact_perception.onnx_export import export_onnx, onnxruntime_latency  # noqa: E402
-from compact_perception.models import build_model  # noqa: E402
-from compact_perception import efficiency as eff  # noqa: E402
+from compact_perception.learning.onnx_export import export_onnx, onnxruntime_latency  # noqa: E402
+from compact_perception.learning.models import build_model  # noqa: E402
+from compact_perception.evaluation import efficiency as eff  # noqa: E402
 from compact_perception.report.tables.table3 import build_table3, table3_csv, table3_markdown  # noqa: E402
-from compact_perception.timing import Variant, benchmark_variants, build_inference, default_variants  # noqa: E402
+from compact_perception.evaluation.timing import Variant, benchmark_variants, build_inference, default_variants  # noqa: E402
 
 #: |ONNX Runtime - PyTorch| on the compact model at 32 px (float32 both sides; measured ~2e-6:
 #: operator fusion and summation order only).

@@ -6,8 +6,8 @@ import importlib.util
 
 import torch
 
-from compact_perception.data import make_loader, to_device
-from compact_perception.models import DATASET_SPECS, build_model
+from compact_perception.data.loader import make_loader, to_device
+from compact_perception.learning.models import DATASET_SPECS, build_model
 
 from synthetic import make_cache
 
@@ -44,8 +44,8 @@ def test_fingerprint_is_stable_and_locates_a_change(root, tmp_path, monkeypatch)
 
 def _mgn_run(fp, params, model_id: str, batch: dict, perturb: str | None = None) -> dict:
     """The ``mgn`` phase of ``model_id``'s recipe from seed 0, the weights of ``perturb`` 1 % larger."""
-    from compact_perception.losses import de_loss_factor
-    from compact_perception.weighting import build_weighting
+    from compact_perception.learning.losses import de_loss_factor
+    from compact_perception.learning.weighting import build_weighting
 
     recipe = params.train.models[model_id]
     torch.manual_seed(0)

@@ -16,10 +16,10 @@ import torch
 from compact_perception.core.cache import write_cache
 from compact_perception.core.classes import BEV_NAMES, CARLA_NAMES
 from compact_perception.core.config import parse_params
-from compact_perception.evaluate import evaluate_floors
+from compact_perception.evaluation.evaluate import evaluate_floors
 from compact_perception.core.floor_rule import FLOOR_PREDICTORS
-from compact_perception.floor import TRIVIAL, FixedPredictor, fit_trivial, floor_of, margins
-from compact_perception.geometry import VIEWS
+from compact_perception.evaluation.floor import TRIVIAL, FixedPredictor, fit_trivial, floor_of, margins
+from compact_perception.data.geometry import VIEWS
 
 S, V, C, CB = 16, len(VIEWS), len(CARLA_NAMES), len(BEV_NAMES)
 

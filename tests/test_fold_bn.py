@@ -7,10 +7,10 @@ import pytest
 import torch
 from torch import nn
 
-from compact_perception.efficiency import dummy_batch
-from compact_perception.models import DATASET_SPECS, build_model
-from compact_perception.models.blocks import ConvBlock
-from compact_perception.timing import FOLD_TOLERANCE, Variant, build_inference, fold_batchnorm, max_abs_diff
+from compact_perception.evaluation.efficiency import dummy_batch
+from compact_perception.learning.models import DATASET_SPECS, build_model
+from compact_perception.learning.models.blocks import ConvBlock
+from compact_perception.evaluation.timing import FOLD_TOLERANCE, Variant, build_inference, fold_batchnorm, max_abs_diff
 
 
 def _trained_statistics(model: nn.Module, batch: dict) -> nn.Module:
@@ -96,7 +96,7 @@ def test_a_fold_bn_variant_runs_on_the_cpu():
 
 # ----------------------------------------------------------------------------- Table III at the hardware's pace
 def test_fastest_exact_picks_the_fastest_within_the_tolerance():
-    from compact_perception.timing import EXACT_TOLERANCE, fastest_exact
+    from compact_perception.evaluation.timing import EXACT_TOLERANCE, fastest_exact
 
     results = [{"name": "fp32", "fps": 10.0, "max_abs_diff": 0.0},
                {"name": "bf16_weights", "fps": 50.0, "max_abs_diff": 4e-3},          # faster, not exact
@@ -112,9 +112,9 @@ def test_table3_inference_on_a_cpu_times_every_variant_and_names_the_fastest_exa
     """The benchmark stage's CUDA path, on a CPU (no CUDA graphs): float32 eager beside the fastest
     variant within the exact tolerance; the network cast to bf16 (weights and inputs, no autocast)
     runs and is reported, but its outputs are too far from float32 to count as exact."""
-    from compact_perception.efficiency import dummy_batch
-    from compact_perception.models import build_model
-    from compact_perception.timing import EXACT_TOLERANCE, table3_inference, table3_variants
+    from compact_perception.evaluation.efficiency import dummy_batch
+    from compact_perception.learning.models import build_model
+    from compact_perception.evaluation.timing import EXACT_TOLERANCE, table3_inference, table3_variants
 
     torch.manual_seed(0)
     model = build_model("compact_15l", "A").eval()

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from compact_perception.floor import floor_of
+from compact_perception.evaluation.floor import floor_of
 from compact_perception.report.collect import load_row_frames
 from compact_perception.report.gate import (ABOVE, BELOW, NO_DATA, NO_FLOOR, UNSHOWN, Gate, Margin,
                                             dataset_gate, failing_text, status_of)

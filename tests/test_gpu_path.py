@@ -25,12 +25,12 @@ import yaml
 
 from compact_perception.core.config import ParamsError, parse_params
 from compact_perception.core.errors import RunError
-from compact_perception.plan import recipe_of
-from compact_perception.training import distributed as ddp
-from compact_perception.training import train as train_mod
-from compact_perception.training.epoch import NonFinite, train_step
-from compact_perception.training.state import RunSpec
-from compact_perception.weighting import WEIGHTINGS, MGNWeighting, GradNormWeighting, weighting_settings
+from compact_perception.learning.plan import recipe_of
+from compact_perception.learning.training import distributed as ddp
+from compact_perception.learning.training import train as train_mod
+from compact_perception.learning.training.epoch import NonFinite, train_step
+from compact_perception.learning.training.state import RunSpec
+from compact_perception.learning.weighting import WEIGHTINGS, MGNWeighting, GradNormWeighting, weighting_settings
 
 from repo_params import cap_epochs
 from run_fixture import run_in
@@ -58,7 +58,7 @@ def build(params, model: str, cache: Path, out: Path, arm: str | None = None, di
 
 def batch_of(cache: Path, model: str, n: int) -> dict:
     from compact_perception.core import catalog
-    from compact_perception.data import make_loader
+    from compact_perception.data.loader import make_loader
 
     return next(iter(make_loader(cache, "train", catalog.MODELS[model].lidar_channels, n, shuffle=False)))
 
@@ -224,12 +224,12 @@ def _mgn_pair(authors: bool, cls=MGNWeighting, **kw):
 def test_an_overflowing_loss_scale_gives_the_unscaled_update(tmp_path, method):
     """float32 with a loss scale that overflows the scaled losses (1e38): the norms are taken again
     unscaled, and the new weights equal those of the unscaled update."""
-    from compact_perception.models import build_model
+    from compact_perception.learning.models import build_model
 
     torch.manual_seed(0)
     cache = make_cache(tmp_path / "cache", size=SIZE, counts=(2, 1, 1))
     batch = {k: v for k, v in batch_of(cache, "compact_15l", 2).items()}
-    from compact_perception.data import to_device
+    from compact_perception.data.loader import to_device
 
     batch = to_device(batch, torch.device("cpu"), 23)
     cls = GradNormWeighting if method == "gradnorm" else MGNWeighting

@@ -15,10 +15,10 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from compact_perception.evaluate import frame_scores
-from compact_perception.metrics import class_confusion, class_iou, compute_metrics
-from compact_perception.models.segnet import GradNormSegNet
-from compact_perception.training.epoch import evaluate_split
+from compact_perception.evaluation.evaluate import frame_scores
+from compact_perception.learning.metrics import class_confusion, class_iou, compute_metrics
+from compact_perception.learning.models.segnet import GradNormSegNet
+from compact_perception.learning.training.epoch import evaluate_split
 
 N_CLS, S = 23, 32  # classes of the simulated sets, default resolution
 

@@ -151,10 +151,10 @@ def test_every_worker_count_is_bounded_by_the_usable_cores(tmp_path, monkeypatch
     """``train.parallel_runs: 64`` with many runs could start 64 training processes on 2 cores (and
     every other worker count as many as it said). Each place that starts processes now takes at
     most the usable cores (os.sched_getaffinity)."""
-    from compact_perception import authors, preprocess
-    from compact_perception.nuscenes import ingest
-    from compact_perception.training import parallel
-    from compact_perception.world import generate as gen
+    from compact_perception.data import authors, preprocess
+    from compact_perception.data.nuscenes import ingest
+    from compact_perception.learning.training import parallel
+    from compact_perception.data.world import generate as gen
     from fixtures_raw import make_raw_dataset
 
     sizes: list[int] = []
@@ -180,7 +180,7 @@ def test_every_worker_count_is_bounded_by_the_usable_cores(tmp_path, monkeypatch
 
 
 def test_a_training_runs_loader_workers_are_bounded_by_the_usable_cores(tmp_path, monkeypatch, two_cores):
-    from compact_perception.training import train as train_mod
+    from compact_perception.learning.training import train as train_mod
     from repo_params import cap_epochs
     from run_fixture import run_in
     from synthetic import make_cache
@@ -249,7 +249,7 @@ def test_a_worker_that_cannot_start_is_not_blamed_on_the_output_folder(tmp_path,
     import errno
     import os
 
-    from compact_perception.training import parallel
+    from compact_perception.learning.training import parallel
     from pipeline.train import main
 
     class _Context:
@@ -321,7 +321,7 @@ def test_generation_refuses_up_front_a_dataset_the_free_disk_cannot_hold(tmp_pat
     import time
     from collections import namedtuple
 
-    from compact_perception.world import generate as gen
+    from compact_perception.data.world import generate as gen
     from pipeline.generate import main
 
     def no_write(*_a, **_k):
@@ -347,7 +347,7 @@ def test_generation_refuses_up_front_a_dataset_the_free_disk_cannot_hold(tmp_pat
 
 
 def test_the_disk_estimate_is_near_what_generation_writes(tmp_path):
-    from compact_perception.world import generate as gen
+    from compact_perception.data.world import generate as gen
 
     d = repo_params_dict()
     d["datasets"]["A"]["frames"]["default"] = 40

@@ -6,7 +6,7 @@ import pytest
 
 from compact_perception.core import io
 from compact_perception.core.classes import CARLA_PALETTE, palette_to_index
-from compact_perception.geometry import topview_center, topview_index
+from compact_perception.data.geometry import topview_center, topview_index
 
 
 def test_npz_is_byte_identical_and_loadable(tmp_path):

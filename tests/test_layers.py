@@ -1,31 +1,29 @@
 """The package's layers import downward only.
 
 Every module under ``src/compact_perception`` is parsed with :mod:`ast` (imports inside functions
-included, relative imports resolved) and mapped to its layer by :data:`LAYERS`; an import of a
-module in a higher layer fails, and so does an import across two subpackages of one layer that
-:data:`SIBLINGS_APART` keeps apart.
+included, relative imports resolved) and mapped to its place in :data:`LAYERS`; an import of a
+module placed higher fails, and so does an import between two parts :data:`KEPT_APART` separates.
 
-The layer table (lowest first; a module may import its own layer's leaf modules and anything
-below it):
+The layers are the package's folders, in the pipeline's order (lowest first); a module may import
+its own layer and those below it, and inside a layer, its own tier and those below it:
 
-0. ``core`` -- params, catalog, registries, io, errors: imports nothing of the project above it.
-1. ``record`` -- the raw record contract of ``data/raw/<ds>/`` (manifest, frame npz): the sources
-   write it and the preprocess stage reads it, so neither imports the other.
-2. leaf modules -- one concern each, on top of ``core``: ``data``, ``models``, ``weighting``,
-   ``geometry``, ``dvs``, ``lidar``, ``world``, ``nuscenes``, ``authors``, ``carla`` (the sources'
-   own code, ``world.source`` and ``carla.source`` included), ``losses``, ``metrics``, ``floor``,
-   ``plan``, ``schedule`` (the plateau rule shared by training and MGN), ``qualitative`` (the
-   qualitative grid, drawn by the generate stage and the report), ``figures_generate`` and
-   ``figures_preprocess`` (the data stages' figures), ``efficiency`` (the model measurements of
-   Table III), ``onnx_export`` (ONNX export of a network).
-3. ``sources`` (the registry of data sources) and ``preprocess`` (the preprocess stage, which
-   looks the source up) -- they join the sources to the stages.
-4. ``training``, ``evaluate`` and ``timing`` (the benchmark's inference variants, which use
-   ``training.precision``) -- they run the networks of layer 2.
-5. ``report`` and ``stats`` (the report's statistics) -- they read what layer 4 wrote.
-6. ``pipeline`` -- the stage entry points (outside ``src``; may import everything).
+0. ``core`` -- params (``scale`` resolved there), catalog, registries, io, errors, the facts the
+   report shares with evaluation: imports nothing of the project above it.
+1. ``data`` -- the generate and preprocess stages and the loader:
+   (a) ``data.record``, the raw record contract: the sources write it, preprocessing reads it;
+   (b) the sources' own code and the sensors' maths: ``world``, ``carla``, ``nuscenes``,
+   ``authors``, ``geometry``, ``dvs``, ``lidar``, the stages' figures, ``qualitative``, ``loader``;
+   (c) ``sources`` (the registry) and ``preprocess`` (which looks the source up): a source never
+   imports its consumer.
+2. ``learning`` -- the train stage: (a) ``models``, ``weighting`` (kept apart: a network does not
+   know its loss weighting, nor the weighting the network), ``losses``, ``metrics``, ``schedule``,
+   ``plan``, ``onnx_export``; (b) ``training``, which runs them.
+3. ``evaluation`` -- the evaluate and benchmark stages: ``evaluate``, ``floor``, ``efficiency``,
+   ``timing``.
+4. ``report`` and ``stats`` (the report's statistics) -- they read what the stages below wrote.
+5. ``pipeline`` -- the stage entry points (outside ``src``; may import everything).
 
-The package's own ``__init__`` imports nothing of the project, so it is layer 0.
+The package's own ``__init__`` and each layer's ``__init__`` import nothing of the project.
 
 The report needs no torch: nothing the report stage can import (``pipeline/report.py``, every
 module of ``report/`` and ``stats/``, and everything they import, lazily too) imports torch or
@@ -52,26 +50,32 @@ ROOT = Path(__file__).resolve().parents[1]
 PKG = ROOT / "src" / "compact_perception"
 TOP = "compact_perception"
 
-CORE, RECORD, LEAF, SOURCES, RUN, REPORT = 0, 1, 2, 3, 4, 5
-LAYERS: dict[str, int] = {
-    "": CORE, "core": CORE,
-    "record": RECORD,
-    **{name: LEAF for name in (
-        "data", "models", "weighting", "geometry", "dvs", "lidar", "world", "nuscenes", "authors", "carla",
-        "losses", "metrics", "floor", "plan", "schedule", "qualitative", "figures_generate", "figures_preprocess",
-        "efficiency", "onnx_export")},
-    "sources": SOURCES, "preprocess": SOURCES,
-    "training": RUN, "evaluate": RUN, "timing": RUN,
-    "report": REPORT, "stats": REPORT,
+CORE, DATA, LEARNING, EVALUATION, REPORT = 0, 1, 2, 3, 4
+#: Where each part of the package sits: (layer, tier inside the layer). A module's place is that of
+#: the longest entry its dotted name (below the package) starts with.
+LAYERS: dict[str, tuple[int, int]] = {
+    "": (CORE, 0), "core": (CORE, 0),
+    "data": (DATA, 0), "data.record": (DATA, 0),
+    **{f"data.{name}": (DATA, 1) for name in (
+        "world", "carla", "nuscenes", "authors", "geometry", "dvs", "lidar", "figures_generate",
+        "figures_preprocess", "qualitative", "loader")},
+    "data.sources": (DATA, 2), "data.preprocess": (DATA, 2),
+    "learning": (LEARNING, 0),
+    **{f"learning.{name}": (LEARNING, 0) for name in (
+        "models", "weighting", "losses", "metrics", "schedule", "plan", "onnx_export")},
+    "learning.training": (LEARNING, 1),
+    "evaluation": (EVALUATION, 0),
+    **{f"evaluation.{name}": (EVALUATION, 0) for name in ("evaluate", "floor", "efficiency", "timing")},
+    "report": (REPORT, 0), "stats": (REPORT, 0),
 }
-LAYER_NAMES = {CORE: "core", RECORD: "record contract", LEAF: "leaf modules", SOURCES: "data sources",
-               RUN: "training/evaluate", REPORT: "report"}
+LAYER_NAMES = {CORE: "core", DATA: "data", LEARNING: "learning", EVALUATION: "evaluation", REPORT: "report"}
 
-#: Subpackages of one layer that must not import each other (the trainable parts stay separate:
-#: a network does not know its loss weighting, nor the weighting the network).
-SIBLINGS_APART: frozenset[frozenset[str]] = frozenset({
-    frozenset({"models", "weighting"}),
-    frozenset({"training", "evaluate"}),
+#: Parts that must not import each other, whatever their places: the trainable parts stay
+#: separate (a network does not know its loss weighting, nor the weighting the network), and
+#: scoring a run does not reach into how it was trained.
+KEPT_APART: frozenset[frozenset[str]] = frozenset({
+    frozenset({"learning.models", "learning.weighting"}),
+    frozenset({"learning.training", "evaluation.evaluate"}),
 })
 
 
@@ -93,16 +97,25 @@ def _imported(module: str, path: Path) -> list[tuple[int, str]]:
     return [(line, name) for line, name in found if name == TOP or name.startswith(TOP + ".")]
 
 
-def _top(module: str) -> str:
-    """The first component below the package (``""`` for the package itself)."""
-    parts = module.split(".")
-    return parts[1] if len(parts) > 1 else ""
+def _part(module: str) -> str:
+    """The :data:`LAYERS` entry ``module`` belongs to: the longest one its name below the package
+    starts with (``""`` for the package itself)."""
+    below = module.split(".", 1)[1] if "." in module else ""
+    parts = below.split(".") if below else []
+    for n in range(len(parts), -1, -1):
+        key = ".".join(parts[:n])
+        if key in LAYERS:
+            return key
+    raise AssertionError(f"{module}: no place in tests/test_layers.py's LAYERS; add {below!r} there")
 
 
-def _layer(module: str) -> int:
-    top = _top(module)
-    assert top in LAYERS, f"{module}: no layer in tests/test_layers.py's LAYERS; add {top!r} there"
-    return LAYERS[top]
+def _layer(module: str) -> tuple[int, int]:
+    return LAYERS[_part(module)]
+
+
+def _where(module: str) -> str:
+    layer, tier = _layer(module)
+    return f"{LAYER_NAMES[layer]}/{_part(module) or 'package'} (tier {tier})"
 
 
 def _known(name: str, modules: dict[str, Path]) -> bool:
@@ -118,17 +131,24 @@ def _violations() -> list[str]:
     modules = _modules()
     bad = []
     for module, path in modules.items():
-        here, top = _layer(module), _top(module)
+        here, part = _layer(module), _part(module)
         for line, name in _imported(module, path):
             if not _known(name, modules):
                 continue  # a name imported from a module, not a module
-            there, other = _layer(name), _top(name)
+            there, other = _layer(name), _part(name)
             rel = f"{path.relative_to(ROOT)}:{line}: {module} imports {name}"
             if there > here:
-                bad.append(f"{rel} ({LAYER_NAMES[here]} -> {LAYER_NAMES[there]}: upward)")
-            elif other != top and frozenset({top, other}) in SIBLINGS_APART:
-                bad.append(f"{rel} (sideways: {top} and {other} are kept apart)")
+                bad.append(f"{rel} ({_where(module)} -> {_where(name)}: upward)")
+            elif other != part and frozenset({part, other}) in KEPT_APART:
+                bad.append(f"{rel} (sideways: {part} and {other} are kept apart)")
     return bad
+
+
+def test_the_top_level_reads_as_the_pipeline():
+    """The package's folders are its layers, in the pipeline's order; no loose module at the top."""
+    top = sorted(p.name for p in PKG.iterdir() if p.suffix == ".py" or (p.is_dir() and (p / "__init__.py").exists()))
+    assert top == ["__init__.py", "core", "data", "evaluation", "learning", "report", "stats"]
+    assert sorted({key.split(".")[0] for key in LAYERS if key}) == top[1:]
 
 
 def test_layers_import_downward_only():
@@ -139,21 +159,25 @@ def test_layers_import_downward_only():
 def test_checker_resolves_relative_and_lazy_imports(tmp_path):
     """The parser itself: a lazy relative import two levels up is found and resolved."""
     src = tmp_path / "x.py"
-    src.write_text("def f():\n    from ..report.figures import save_figure\nimport os\n")
-    found = _imported("compact_perception.weighting.mgn", src)
+    src.write_text("def f():\n    from ...report.figures import save_figure\nimport os\n")
+    found = _imported("compact_perception.learning.weighting.mgn", src)
     assert (2, "compact_perception.report.figures") in found
     assert (2, "compact_perception.report.figures.save_figure") in found
     assert all(name != "os" for _, name in found)
 
 
 @pytest.mark.parametrize("importer, imported, upward", [
-    ("compact_perception.weighting.mgn", "compact_perception.training.schedule", True),
-    ("compact_perception.authors", "compact_perception.report.qualitative", True),
-    ("compact_perception.report.study", "compact_perception.weighting", False),
-    ("compact_perception.training.train", "compact_perception.core.config", False),
-    ("compact_perception.carla.recording", "compact_perception.preprocess", True),  # a source, its consumer
-    ("compact_perception.carla.recording", "compact_perception.record", False),
-    ("compact_perception.preprocess", "compact_perception.sources", False),
+    ("compact_perception.learning.weighting.mgn", "compact_perception.learning.training.train", True),
+    ("compact_perception.learning.weighting.mgn", "compact_perception.learning.schedule", False),
+    ("compact_perception.data.authors", "compact_perception.report.figures", True),
+    ("compact_perception.data.loader", "compact_perception.learning.losses", True),
+    ("compact_perception.learning.training.train", "compact_perception.evaluation.evaluate", True),
+    ("compact_perception.evaluation.evaluate", "compact_perception.learning.metrics", False),
+    ("compact_perception.report.study", "compact_perception.learning.weighting", False),
+    ("compact_perception.learning.training.train", "compact_perception.core.config", False),
+    ("compact_perception.data.carla.recording", "compact_perception.data.preprocess", True),  # a source, its consumer
+    ("compact_perception.data.carla.recording", "compact_perception.data.record", False),
+    ("compact_perception.data.preprocess", "compact_perception.data.sources", False),
 ])
 def test_layer_order(importer, imported, upward):
     assert (_layer(imported) > _layer(importer)) is upward
@@ -162,7 +186,7 @@ def test_layer_order(importer, imported, upward):
 # ----------------------------------------------------------------------------- the report needs no torch
 #: The modules that compute a run's numbers (evaluation's metrics and floor, training's losses):
 #: the report reads what they wrote, never them, so editing one reruns nothing of the report.
-RUN_SIDE: tuple[str, ...] = (f"{TOP}.metrics", f"{TOP}.losses", f"{TOP}.floor")
+RUN_SIDE: tuple[str, ...] = (f"{TOP}.learning.metrics", f"{TOP}.learning.losses", f"{TOP}.evaluation.floor")
 #: What no module of the report stage may import, directly or through others, lazily too.
 NOT_IN_REPORT: tuple[str, ...] = ("torch", *RUN_SIDE)
 
@@ -174,6 +198,12 @@ NOT_IN_REPORT: tuple[str, ...] = ("torch", *RUN_SIDE)
 #: (:func:`test_the_start_up_imports_torch_only_in_the_torch_stages_helpers`), and the report stage,
 #: run whole, loads no torch (:func:`test_the_report_stage_runs_without_torch`).
 TORCH_ONLY_WHEN_CALLED: frozenset[str] = frozenset({f"src/{TOP}/core/determinism.py", f"src/{TOP}/core/machine.py"})
+
+
+def test_the_run_side_names_modules_that_exist():
+    """The forbidden modules are real ones: a move cannot make the torch-free check vacuous."""
+    modules = _modules()
+    assert [name for name in RUN_SIDE if name not in modules] == []
 
 
 def _report_entries() -> list[Path]:
@@ -246,17 +276,17 @@ def test_the_checker_finds_a_lazy_import_two_modules_down(tmp_path, monkeypatch)
     """The chain search itself: a report module importing a core module that lazily imports the
     metrics module is caught, and the chain names both files."""
     pkg = tmp_path / "src" / TOP
-    for sub in ("report", "core"):
+    for sub in ("report", "core", "learning"):
         (pkg / sub).mkdir(parents=True)
         (pkg / sub / "__init__.py").write_text("")
     (pkg / "__init__.py").write_text("")
-    (pkg / "metrics.py").write_text("import torch\n")
-    (pkg / "core" / "facts.py").write_text("def f():\n    from ..metrics import mae\n")
+    (pkg / "learning" / "metrics.py").write_text("import torch\n")
+    (pkg / "core" / "facts.py").write_text("def f():\n    from ..learning.metrics import mae\n")
     (pkg / "report" / "table.py").write_text("from ..core import facts\n")
     (pkg / "report" / "clean.py").write_text("from ..core import catalog\nimport numpy\n")
     monkeypatch.setattr(sys.modules[__name__], "ROOT", tmp_path)
     assert _chain_to_forbidden(pkg / "report" / "table.py") == [
-        f"src/{TOP}/report/table.py", f"src/{TOP}/core/facts.py", f"{TOP}.metrics"]
+        f"src/{TOP}/report/table.py", f"src/{TOP}/core/facts.py", f"{TOP}.learning.metrics"]
     assert _chain_to_forbidden(pkg / "report" / "clean.py") is None
 
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from compact_perception.losses import (
+from compact_perception.learning.losses import (
     bce_dice_loss,
     cross_entropy_onehot,
     huber_loss,
@@ -16,7 +16,7 @@ from compact_perception.losses import (
     lovasz_softmax,
     squared_loss,
 )
-from compact_perception.metrics import (
+from compact_perception.learning.metrics import (
     class_confusion,
     class_iou,
     argmax_one_hot,
@@ -199,7 +199,7 @@ def test_both_scoring_rules_by_hand_on_a_sigmoid_ls_head() -> None:
     join the union: 1/4).
     Arg-max rule: cell 0 -> class 0, cell 1 -> class 2, cell 2 left out (no label): predicted
     {c0 k0, c1 k2}, truth {c0 k1, c1 k2}: intersection 1, union 3 -> 1/3."""
-    from compact_perception.metrics import iou_argmax_per_sample
+    from compact_perception.learning.metrics import iou_argmax_per_sample
 
     out = torch.tensor([[0.7, 0.2, 0.1], [0.6, 0.3, 0.2], [0.1, 0.4, 0.9]], dtype=D).reshape(1, 3, 1, 3)
     gt = torch.tensor([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], dtype=D).reshape(1, 3, 1, 3)
@@ -230,7 +230,7 @@ def test_argmax_rule_averages_views_and_keeps_every_labelled_pixel() -> None:
     """SS, two views of 2 pixels, 2 classes, every pixel labelled. View 0: outputs argmax
     [0, 1], truth [0, 1] -> IoU 1. View 1: argmax [0, 0], truth [1, 1] -> intersection 0,
     union 4 -> 0. Mean over views 0.5."""
-    from compact_perception.metrics import iou_argmax_per_sample
+    from compact_perception.learning.metrics import iou_argmax_per_sample
 
     out = torch.tensor([[[0.9, 0.2], [0.1, 0.8]], [[0.6, 0.7], [0.4, 0.3]]], dtype=D).reshape(1, 2, 2, 1, 2)
     gt = torch.tensor([[[1.0, 0.0], [0.0, 1.0]], [[0.0, 0.0], [1.0, 1.0]]], dtype=D).reshape(1, 2, 2, 1, 2)
@@ -352,8 +352,8 @@ def test_multilabel_confusion_by_hand() -> None:
 def test_the_encoders_and_the_metric_decoder_agree() -> None:
     """The world's depth camera (uint16) and the nuScenes projection (float) encode what the
     depth metrics decode: one CARLA log encoding (core/depth.py)."""
-    from compact_perception.nuscenes.projection import carla_log_depth
-    from compact_perception.world import camera
+    from compact_perception.data.nuscenes.projection import carla_log_depth
+    from compact_perception.data.world import camera
 
     d = np.array([5.0, 20.0, 80.0, 500.0])
     x = torch.from_numpy(carla_log_depth(d).astype(np.float64))
@@ -421,7 +421,7 @@ def test_depth_errors_field_convention_by_hand() -> None:
 def test_summarise_mv_of_the_means_and_tm() -> None:
     import pandas as pd
 
-    from compact_perception.evaluate import frame_scores, summarise
+    from compact_perception.evaluation.evaluate import frame_scores, summarise
 
     rows = [frame_scores({"mae_de": 0.0, "iou_ss": 1.0, "iou_ls": 1.0, "iou_bevp": 1.0, "loss_de": 9.0}),
             frame_scores({"mae_de": 0.2, "iou_ss": 0.2, "iou_ls": 0.2, "iou_bevp": 0.2})]
@@ -436,7 +436,7 @@ def test_summarise_mv_of_the_means_and_tm() -> None:
 
 
 def test_class_counts_accumulate_over_frames() -> None:
-    from compact_perception.evaluate import ClassCounts
+    from compact_perception.evaluation.evaluate import ClassCounts
 
     gt = _onehot([[0, 0, 1], [2, -1, 1]], 4)
     pred = _onehot([[0, 1, 1], [2, 0, 0]], 4)
@@ -457,8 +457,8 @@ def test_evaluate_run_writes_paper_mv_and_field_metrics(tmp_path, params_dict) -
     import pandas as pd
 
     from compact_perception.core.config import parse_params
-    from compact_perception.evaluate import evaluate_run
-    from compact_perception.models import build_model
+    from compact_perception.evaluation.evaluate import evaluate_run
+    from compact_perception.learning.models import build_model
     from run_fixture import run_in
     from synthetic import make_cache
 

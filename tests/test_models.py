@@ -11,8 +11,8 @@ import torch.nn.functional as F
 from torch import nn
 
 from compact_perception.core.catalog import dataset_ids, model_ids
-from compact_perception.models import DATASET_SPECS, MODELS, build_model, count_parameters
-from compact_perception.models.polarnet import PolarNet, RingConv2d
+from compact_perception.learning.models import DATASET_SPECS, MODELS, build_model, count_parameters
+from compact_perception.learning.models.polarnet import PolarNet, RingConv2d
 
 torch.set_num_threads(1)
 
@@ -235,7 +235,7 @@ def test_tiny_overfit(model_id: str) -> None:
     torch.manual_seed(1)
     if model_id == "gradnorm_segnet":
         # one view keeps the step cheap; the 4 per-view networks are identical in structure
-        from compact_perception.models.segnet import GradNormSegNet
+        from compact_perception.learning.models.segnet import GradNormSegNet
 
         model = GradNormSegNet(DATASET_SPECS["A"].n_seg, n_views=1)
     else:
@@ -261,7 +261,7 @@ def test_network_missing_a_contract_member_fails_at_registration():
     without ``shared_layers`` (or without a return annotation) never reaches training."""
     from torch import nn
 
-    from compact_perception.models.base import NETWORKS, PerceptionNet, contract_gaps, register_network
+    from compact_perception.learning.models.base import NETWORKS, PerceptionNet, contract_gaps, register_network
 
     class Partial(nn.Module):
         tasks = ("de",)
@@ -294,8 +294,8 @@ def test_network_missing_a_contract_member_fails_at_registration():
 
 
 def test_every_registered_network_meets_the_contract():
-    from compact_perception.models import NETWORKS
-    from compact_perception.models.base import contract_gaps
+    from compact_perception.learning.models import NETWORKS
+    from compact_perception.learning.models.base import contract_gaps
 
     for key in NETWORKS.keys():
         cls = NETWORKS[key].__annotations__["return"]

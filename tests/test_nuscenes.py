@@ -20,17 +20,17 @@ import pytest
 
 from compact_perception.core.classes import CARLA_NAMES, NUSCENES_NAMES, TAG
 from compact_perception.core.config import WorldParams, parse_params
-from compact_perception.geometry import VIEWS, topview_index
-from compact_perception.nuscenes import LIDAR_CHANNEL, VIEW_CHANNELS
-from compact_perception.nuscenes.classmap import CARLA_TO_NUSCENES, NUSCENES_INDEX, actor_category
-from compact_perception.nuscenes.export import export_nuscenes_sim
-from compact_perception.nuscenes.ingest import (
+from compact_perception.data.geometry import VIEWS, topview_index
+from compact_perception.data.nuscenes import LIDAR_CHANNEL, VIEW_CHANNELS
+from compact_perception.data.nuscenes.classmap import CARLA_TO_NUSCENES, NUSCENES_INDEX, actor_category
+from compact_perception.data.nuscenes.export import export_nuscenes_sim
+from compact_perception.data.nuscenes.ingest import (
     NuScenesInputError, ingest_nuscenes, ingest_sample, load_nuscenes,
 )
-from compact_perception.nuscenes.projection import (
+from compact_perception.data.nuscenes.projection import (
     carla_log_depth, matrix_to_quat, project_points, quat_to_matrix, rasterise_points, sensor_to_camera, yaw_quat,
 )
-from compact_perception.nuscenes.split import split_scenes, split_sizes
+from compact_perception.data.nuscenes.split import split_scenes, split_sizes
 
 S_EXPORT = 32
 N_SCENES, N_SAMPLES = 5, 2

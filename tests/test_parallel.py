@@ -13,8 +13,8 @@ import pytest
 import yaml
 
 from compact_perception.core.config import parse_params
-from compact_perception.plan import dataset_runs
-from compact_perception.training.parallel import Job, JobError, run_jobs
+from compact_perception.learning.plan import dataset_runs
+from compact_perception.learning.training.parallel import Job, JobError, run_jobs
 
 from repo_params import cap_epochs, repo_params_dict
 from run_fixture import run_in
@@ -46,7 +46,7 @@ def test_the_first_failure_is_the_stage_error(caplog):
 
 def test_longest_first_keeps_the_order_of_equal_costs(monkeypatch):
     seen: list[str] = []
-    from compact_perception.training import parallel
+    from compact_perception.learning.training import parallel
 
     monkeypatch.setattr(parallel, "_call", lambda fn, job: (seen.append(job.name) or (job.name, None, None)))
     run_jobs(_square, [Job("a", 1, 1.0), Job("b", 1, 3.0), Job("c", 1, 1.0), Job("d", 1, 3.0)], 1, "t")

@@ -7,8 +7,8 @@ from functools import partial
 
 from compact_perception.core.config import parse_params
 from compact_perception.core.params_audit import ENV_VAR, ParamsView, _Log, leaf_keys
-from compact_perception.plan import planned_run
-from compact_perception.training.parallel import Job, run_jobs
+from compact_perception.learning.plan import planned_run
+from compact_perception.learning.training.parallel import Job, run_jobs
 
 
 def _view(params_dict: dict) -> tuple[ParamsView, _Log]:

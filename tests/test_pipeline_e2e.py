@@ -347,7 +347,7 @@ def test_library_code_change_reruns_and_changes_the_result(pipeline):
     """Halving the IoU in metrics.py: training and evaluation rerun, nothing is 'already complete',
     and the metrics file changes (the issue's first reproduction)."""
     repo, env, _ = pipeline
-    metrics_py = repo / "src/compact_perception/metrics.py"
+    metrics_py = repo / "src/compact_perception/learning/metrics.py"
     before = json.loads((repo / "results/A/compact_1l/seed0/metrics.json").read_text())
     text = metrics_py.read_text()
     assert text.count("def iou(") == 1

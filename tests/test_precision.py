@@ -9,9 +9,9 @@ import pytest
 import torch
 from torch import nn
 
-from compact_perception.training import precision as P
-from compact_perception.models import build_model
-from compact_perception.weighting import GradNormWeighting, MGNWeighting
+from compact_perception.learning.training import precision as P
+from compact_perception.learning.models import build_model
+from compact_perception.learning.weighting import GradNormWeighting, MGNWeighting
 
 #: bf16 vs fp32 after one weight update (compact 15L, 16 px, batch 2): the gradient norms agree
 #: within 15 % (relative; a bf16 forward keeps ~3 significant digits per op, compounded over
@@ -71,7 +71,7 @@ def test_auto_on_cuda(monkeypatch: pytest.MonkeyPatch, cc: tuple[int, int], bf16
 
 def test_explicit_choices_and_errors(monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture) -> None:
     monkeypatch.setattr(P, "cpu_flags", lambda: frozenset({"avx2"}))
-    with caplog.at_level(logging.WARNING, logger="compact_perception.training.precision"):
+    with caplog.at_level(logging.WARNING, logger="compact_perception.learning.training.precision"):
         assert P.resolve_precision("bf16", "cpu") == "bf16"        # honoured, with a warning
     assert "emulated" in caplog.text
     with pytest.raises(ValueError, match="train.precision"):
@@ -167,7 +167,7 @@ def test_compile_fallback_warns_once(monkeypatch: pytest.MonkeyPatch, caplog: py
     monkeypatch.setattr(torch, "compile", broken_compile)
     m1, m2 = _Dict(), _Dict()
     x = {"x": torch.rand(4, 3)}
-    with warnings.catch_warnings(record=True) as rec, caplog.at_level(logging.WARNING, "compact_perception.training.precision"):
+    with warnings.catch_warnings(record=True) as rec, caplog.at_level(logging.WARNING, "compact_perception.learning.training.precision"):
         warnings.simplefilter("always")
         f1, f2 = P.maybe_compile(m1, True), P.maybe_compile(m2, True)
         assert torch.equal(f1(x)["y"], m1(x)["y"]) and torch.equal(f2(x)["y"], m2(x)["y"])

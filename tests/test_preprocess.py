@@ -11,12 +11,12 @@ import torch
 from compact_perception.core.cache import CacheError, read_cache, write_cache
 from compact_perception.core.classes import BEV_NAMES, CARLA_NAMES, CARLA_PALETTE, palette_to_index
 from compact_perception.core.config import parse_params
-from compact_perception.data import make_loader, to_device
-from compact_perception.dvs import dvs_colour_to_image, events_to_image
-from compact_perception.lidar import height_channel, ls_ground_truth, topview_15l, topview_1l
-from compact_perception.preprocess import RecordError, preprocess_dataset, preprocess_record, preprocess_sim
-from compact_perception.record import RecordSpec
-from compact_perception.geometry import VIEWS
+from compact_perception.data.loader import make_loader, to_device
+from compact_perception.data.dvs import dvs_colour_to_image, events_to_image
+from compact_perception.data.lidar import height_channel, ls_ground_truth, topview_15l, topview_1l
+from compact_perception.data.preprocess import RecordError, preprocess_dataset, preprocess_record, preprocess_sim
+from compact_perception.data.record import RecordSpec
+from compact_perception.data.geometry import VIEWS
 
 from fixtures_raw import make_raw_dataset, make_record
 from repo_params import section

@@ -11,7 +11,7 @@ import yaml
 
 from compact_perception.core import catalog
 from compact_perception.core.config import DatasetsParams, load_params
-from compact_perception.weighting import WEIGHTINGS, weighting_class, weighting_settings
+from compact_perception.learning.weighting import WEIGHTINGS, weighting_class, weighting_settings
 
 from imports import import_targets, module_file
 
@@ -52,18 +52,18 @@ def test_params_yaml_follows_the_registries():
 
 def test_the_data_sources_equal_the_schema():
     """``datasets.<ds>.source`` accepts exactly the registered sources, and each says what it does in
-    each data stage (compact_perception.sources): no stage branches on the source by hand."""
+    each data stage (compact_perception.data.sources): no stage branches on the source by hand."""
     import typing
 
     from compact_perception.core.params_schema import SimDatasetParams
-    from compact_perception.sources import SOURCES
+    from compact_perception.data.sources import SOURCES
 
     assert set(typing.get_args(SimDatasetParams.model_fields["source"].annotation)) == set(SOURCES.keys())
     for key in SOURCES.keys():
         source = SOURCES[key]
         assert callable(source.write_raw) and callable(source.draw_example), key
         assert source.cache is None or callable(source.cache), key
-    for stage in (ROOT / "pipeline" / "generate.py", ROOT / "src" / "compact_perception" / "preprocess.py"):
+    for stage in (ROOT / "pipeline" / "generate.py", ROOT / "src" / "compact_perception" / "data" / "preprocess.py"):
         text = stage.read_text()
         assert "source ==" not in text and "source in (" not in text, stage
 
@@ -78,7 +78,7 @@ def test_every_weighting_declares_label_and_schema():
 def test_weighting_labels_live_in_the_catalog():
     """The report reads a method's label and ``adaptive`` from ``core.catalog`` (no torch): the same
     methods as the classes registered, and a class registered under an id the catalog lacks fails."""
-    from compact_perception.weighting.base import LossWeighting, register
+    from compact_perception.learning.weighting.base import LossWeighting, register
 
     assert set(catalog.WEIGHTING_METHODS.keys()) == set(WEIGHTINGS.keys())
     for key in WEIGHTINGS.keys():
@@ -94,8 +94,8 @@ def test_every_weighting_class_in_the_package_is_registered():
     import inspect
     import pkgutil
 
-    import compact_perception.weighting as pkg
-    from compact_perception.weighting.base import LossWeighting
+    import compact_perception.learning.weighting as pkg
+    from compact_perception.learning.weighting.base import LossWeighting
 
     registered = {weighting_class(k) for k in WEIGHTINGS.keys()}
     for info in pkgutil.iter_modules(pkg.__path__):
@@ -119,8 +119,8 @@ def test_a_score_is_computed_through_its_catalog_entry():
     statistics and the report's interval statistic all call the entry's formula (of_terms)."""
     import numpy as np
 
-    from compact_perception.evaluate import frame_scores
-    from compact_perception.metrics import scores_from_means
+    from compact_perception.evaluation.evaluate import frame_scores
+    from compact_perception.learning.metrics import scores_from_means
     from compact_perception.report.schema import column_stat
     from compact_perception.stats import STATISTICS
 
@@ -185,7 +185,7 @@ def test_every_network_is_registered_by_its_own_module():
     """A new network is one file: its factory registers itself (``@register_network``) and the
     models package imports the module; every model names a registered network, every network
     serves some model."""
-    from compact_perception.models import NETWORKS, build_model
+    from compact_perception.learning.models import NETWORKS, build_model
 
     networks = {catalog.MODELS[m].network for m in catalog.model_ids()}
     assert networks == set(NETWORKS.keys())
@@ -199,9 +199,10 @@ def test_depth_metrics_derive_from_their_registry():
     extra-metrics table gets its columns, label and decimals."""
     import torch
 
-    from compact_perception import evaluate, metrics
+    from compact_perception.evaluation import evaluate
+    from compact_perception.learning import metrics
     from compact_perception.core.depth_metrics import DEPTH_METRICS
-    from compact_perception.metrics import depth_errors_per_sample
+    from compact_perception.learning.metrics import depth_errors_per_sample
     from compact_perception.report.tables import extra
 
     assert metrics.DEPTH_METRICS is DEPTH_METRICS

@@ -104,7 +104,7 @@ def test_crafted_last_pt_does_not_run_code_in_training(tmp_path, cache):
 def test_every_checkpoint_reader_refuses_a_crafted_pickle(tmp_path, reader):
     """``best.pt`` (the ONNX export at a run's end reads it through ``read_checkpoint``) and
     ``last.pt`` (resume, marking it finished)."""
-    from compact_perception.training import checkpoint
+    from compact_perception.learning.training import checkpoint
 
     marker = tmp_path / "marker"
     path = _crafted(tmp_path / "best.pt", marker, digest="d", epoch=0)
@@ -133,7 +133,7 @@ def test_crafted_best_pt_does_not_run_code_in_evaluation(tmp_path, monkeypatch):
 # ----------------------------------------------------------------------------- item 2: a damaged last.pt
 def test_truncated_last_pt_of_a_finished_run_is_an_error_and_deletes_nothing(tmp_path, cache):
     """It used to log one INFO line, delete best.pt, summary.json and live/ and retrain."""
-    from compact_perception.training.train import train_run
+    from compact_perception.learning.training.train import train_run
 
     d = _tiny(repo_params_dict(), epochs=1)
     run, params = tmp_path / "run", parse_params(d)
@@ -165,8 +165,8 @@ def test_a_huge_lr_stops_the_run_naming_epoch_and_loss(tmp_path, cache, model):
 def test_a_nan_loss_keeps_the_last_good_epoch_resumable(tmp_path, cache, monkeypatch):
     """A nan loss in epoch 2 stops before that step's update; last.pt, best.pt and the logs stay
     at epoch 1, and the run resumes from there."""
-    from compact_perception.training import epoch as epoch_mod
-    from compact_perception.training.train import train_run
+    from compact_perception.learning.training import epoch as epoch_mod
+    from compact_perception.learning.training.train import train_run
 
     params, run, at = parse_params(_tiny(repo_params_dict())), tmp_path / "run", {"epoch": -1}
     real_set_epoch, real_scale = epoch_mod.set_epoch, epoch_mod.scale_de_loss
@@ -220,7 +220,7 @@ def test_an_infinite_weighting_setting_stops_the_stage(tmp_path, cache):
 def test_cache_fingerprint_sees_the_data_wherever_the_cache_is(tmp_path, cache):
     """A cache under a folder named ``test`` hashed nothing (the empty sha256), so changed
     training data went unnoticed by the resume digest."""
-    from compact_perception.training.train import cache_fingerprint
+    from compact_perception.learning.training.train import cache_fingerprint
 
     moved = tmp_path / "some" / "test" / "A"
     shutil.copytree(cache, moved)
@@ -242,7 +242,7 @@ def test_cache_fingerprint_sees_the_data_wherever_the_cache_is(tmp_path, cache):
 def test_a_run_resumed_after_a_kill_inside_a_save_leaves_no_temporary(tmp_path, cache):
     """A process killed between mkstemp and the rename of ``best.pt`` leaves a 0-byte
     ``.best.pt.<random>.tmp``; the run that takes the folder over removes it."""
-    from compact_perception.training.train import train_run
+    from compact_perception.learning.training.train import train_run
 
     params, run = parse_params(_tiny(repo_params_dict())), tmp_path / "run"
     with pytest.raises(InterruptedError):
@@ -275,8 +275,8 @@ def test_a_resolution_no_network_takes_is_rejected(tmp_path, resolution):
 def test_every_network_runs_at_the_resolutions_the_schema_allows(model_id, resolution):
     """The schema's smallest resolution, 32, and the next one, 64, run forward in every network
     (GradNorm SegNet failed at 16: 'Output size is too small')."""
-    from compact_perception.models import build_model
-    from compact_perception.efficiency import dummy_batch
+    from compact_perception.learning.models import build_model
+    from compact_perception.evaluation.efficiency import dummy_batch
 
     model = build_model(model_id, "A").eval()
     with torch.no_grad():
@@ -383,7 +383,7 @@ def test_generation_plans_its_episodes_lazily():
     import itertools
     import time
 
-    from compact_perception.world import generate as gen
+    from compact_perception.data.world import generate as gen
 
     d = _set(repo_params_dict(), "datasets.A.frames.default", 1_000_000)
     d["world"]["frames_per_episode"] = 1
@@ -456,7 +456,7 @@ def _readonly(*_a, **_k):
 
 
 @pytest.mark.parametrize("stage, target, argv", [
-    ("generate", "compact_perception.world.generate.generate_dataset", ["--dataset", "A"]),
+    ("generate", "compact_perception.data.world.generate.generate_dataset", ["--dataset", "A"]),
     ("preprocess", "pipeline.preprocess.preprocess_dataset", ["--dataset", "A"]),
     ("nuscenes_sim", "pipeline.nuscenes_sim.export_nuscenes_sim", []),
     ("ingest_nuscenes", "pipeline.ingest_nuscenes.ingest_from_params", []),
@@ -489,8 +489,8 @@ def test_every_stage_turns_a_failed_write_into_one_line(tmp_path, monkeypatch, s
 @pytest.mark.parametrize("reader", ["read_best", "read_checkpoint", "load_resumable", "mark_finished"])
 def test_no_checkpoint_error_advises_an_unsafe_load(tmp_path, reader):
     """Evaluate's line used to repeat torch's advice to re-run torch.load with weights_only=False."""
-    from compact_perception.evaluate import read_best
-    from compact_perception.training import checkpoint
+    from compact_perception.evaluation.evaluate import read_best
+    from compact_perception.learning.training import checkpoint
 
     marker = tmp_path / "marker"
     path = _crafted(tmp_path / "best.pt", marker, digest="d", epoch=0)

@@ -17,8 +17,8 @@ from torch import nn
 
 from compact_perception.core import catalog
 from compact_perception.core.registry import Registry
-from compact_perception.metrics import scores_from_means
-from compact_perception import efficiency as eff
+from compact_perception.learning.metrics import scores_from_means
+from compact_perception.evaluation import efficiency as eff
 from compact_perception.report import schema
 from compact_perception.report.collect import (ReportInputError, aggregate_cells, Cell, collect_scale,
                                                load_results, load_row_frames, read_metrics)

@@ -16,11 +16,11 @@ from pathlib import Path
 import pytest
 import yaml
 
-from compact_perception.training import provenance
+from compact_perception.learning.training import provenance
 from compact_perception.core.config import parse_params
-from compact_perception.evaluate import evaluate_run
-from compact_perception.plan import planned_run
-from compact_perception.training.train import train_run
+from compact_perception.evaluation.evaluate import evaluate_run
+from compact_perception.learning.plan import planned_run
+from compact_perception.learning.training.train import train_run
 
 from repo_params import cap_epochs
 from run_fixture import run_in
@@ -116,7 +116,7 @@ def test_a_finished_run_of_other_code_is_retrained(tmp_path, params_dict, cache,
     again = _train(params, cache, tmp_path / "run")
     assert again == first  # same code, params and data: the finished run stands
     monkeypatch.setattr(provenance, "source_fingerprint", lambda: "other code")
-    monkeypatch.setattr("compact_perception.training.train.source_fingerprint", lambda: "other code")
+    monkeypatch.setattr("compact_perception.learning.training.train.source_fingerprint", lambda: "other code")
     with caplog.at_level("INFO"):
         rerun = _train(params, cache, tmp_path / "run")
     assert rerun["digest"] != first["digest"]
@@ -125,7 +125,7 @@ def test_a_finished_run_of_other_code_is_retrained(tmp_path, params_dict, cache,
 
 def test_digest_covers_every_result_changing_train_param(params_dict):
     """Every train param but the worker count and device moves the digest."""
-    from compact_perception.training.train import run_digest
+    from compact_perception.learning.training.train import run_digest
 
     def digest(params, data: str = "data") -> str:
         return run_digest(params, planned_run(params, "A", MODEL, 0), 1, data, 1)
@@ -187,8 +187,8 @@ def test_source_fingerprint_covers_the_whole_package_and_the_stage_modules(tmp_p
         real = fingerprint()
         monkeypatch.setattr(provenance, "PACKAGE_ROOT", package)
         assert fingerprint() == real  # the copy is read like the tree itself
-        for edited in (package / "core" / "config.py", package / "weighting" / "uw.py", package / "metrics.py",
-                       tmp_path / "pipeline" / "train.py"):
+        for edited in (package / "core" / "config.py", package / "learning" / "weighting" / "uw.py",
+                       package / "learning" / "metrics.py", tmp_path / "pipeline" / "train.py"):
             text = edited.read_text()
             edited.write_text(text + "\n# edited\n")
             assert fingerprint() != real, edited.relative_to(tmp_path)

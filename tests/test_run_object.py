@@ -16,7 +16,7 @@ import pytest
 
 from compact_perception.core.config import parse_params
 from compact_perception.core.layout import run_paths, study_paths
-from compact_perception.plan import PlannedRun, dataset_runs, planned_run
+from compact_perception.learning.plan import PlannedRun, dataset_runs, planned_run
 
 ROOT = Path(__file__).resolve().parents[1]
 PKG = ROOT / "src" / "compact_perception"
@@ -25,10 +25,10 @@ MAX_PARAMETERS = 6
 
 def _modules_below_the_stages() -> list[str]:
     """``training`` and every module in it, and ``evaluate``."""
-    import compact_perception.training as training
+    import compact_perception.learning.training as training
 
-    return ["compact_perception.training", "compact_perception.evaluate",
-            *(f"compact_perception.training.{m.name}" for m in pkgutil.iter_modules(training.__path__))]
+    return ["compact_perception.learning.training", "compact_perception.evaluation.evaluate",
+            *(f"compact_perception.learning.training.{m.name}" for m in pkgutil.iter_modules(training.__path__))]
 
 
 def _public_callables(module_name: str) -> list[tuple[str, inspect.Signature, bool]]:
@@ -65,9 +65,9 @@ def test_no_public_function_below_the_stages_takes_more_than_six_parameters(modu
 def test_the_parameter_count_sees_what_it_bounds():
     """The checker itself: it finds the entry points and counts their parameters (``*`` markers
     not counted, every keyword-only one counted)."""
-    found = {name: _count(sig, m) for name, sig, m in _public_callables("compact_perception.training.train")}
+    found = {name: _count(sig, m) for name, sig, m in _public_callables("compact_perception.learning.training.train")}
     assert found["train_run"] == 5 and found["run_digest"] == 5
-    found = {name: _count(sig, m) for name, sig, m in _public_callables("compact_perception.evaluate")}
+    found = {name: _count(sig, m) for name, sig, m in _public_callables("compact_perception.evaluation.evaluate")}
     assert found["evaluate_run"] == 3 and found["score_test_split"] == 6
     assert "ClassCounts.add" in found and "Scoring.__init__" not in found  # a dataclass's fields are its record
 
@@ -85,7 +85,8 @@ def _calls_and_imports(path: Path) -> set[str]:
 
 
 def _below_the_stages() -> list[Path]:
-    return [PKG / "plan.py", PKG / "evaluate.py", *sorted((PKG / "training").glob("*.py"))]
+    return [PKG / "learning" / "plan.py", PKG / "evaluation" / "evaluate.py",
+            *sorted((PKG / "learning" / "training").glob("*.py"))]
 
 
 @pytest.mark.parametrize("path", _below_the_stages(), ids=lambda p: p.relative_to(PKG).as_posix())
@@ -151,7 +152,7 @@ def test_both_stages_hand_their_workers_the_params_and_the_run(stage, worker):
     fn = getattr(importlib.import_module(f"pipeline.{stage}"), worker)
     first = [p.annotation for p in inspect.signature(fn).parameters.values()][:2]
     assert first == ["Params", "PlannedRun"]
-    for entry, name in (("compact_perception.training.train", "train_run"), ("compact_perception.evaluate",
+    for entry, name in (("compact_perception.learning.training.train", "train_run"), ("compact_perception.evaluation.evaluate",
                                                                              "evaluate_run")):
         params = list(inspect.signature(getattr(importlib.import_module(entry), name)).parameters.values())
         assert [p.annotation for p in params[:2]] == ["Params", "PlannedRun"], name

@@ -8,7 +8,7 @@ import time
 import numpy as np
 import pytest
 
-from compact_perception.metrics import metric_variance
+from compact_perception.learning.metrics import metric_variance
 from compact_perception.stats import (
     CONTRADICTED,
     COVERAGE_SIMS,

@@ -11,8 +11,8 @@ import pytest
 import torch
 
 from compact_perception.core.config import parse_params
-from compact_perception.schedule import EarlyStop, Plateau
-from compact_perception.training.train import selection_score, train_run
+from compact_perception.learning.schedule import EarlyStop, Plateau
+from compact_perception.learning.training.train import selection_score, train_run
 
 from repo_params import cap_epochs
 from run_fixture import run_in
@@ -74,7 +74,7 @@ def test_torch_rule_halves_after_the_fifth_bad_epoch_paper_rule_after_the_fourth
 
 def test_smooth_l1_de_loss_is_torch_smooth_l1_with_beta_half():
     """``de_loss: smooth_l1`` = torch's smooth_l1_loss(beta=0.5) (the authors' DE loss) = 2 x eq. (2)."""
-    from compact_perception.losses import de_loss_factor, huber_loss, scale_de_loss
+    from compact_perception.learning.losses import de_loss_factor, huber_loss, scale_de_loss
 
     g = torch.Generator().manual_seed(0)
     pred, target = torch.rand(2, 4, 1, 8, 8, generator=g) * 2, torch.rand(2, 4, 1, 8, 8, generator=g)
@@ -110,7 +110,7 @@ def test_early_stop_at_its_edges():
 
 def _scripted_validation(monkeypatch, scores):
     """Validation returns TM = ``scores[i]`` at its i-th call (the first is the untrained net's)."""
-    from compact_perception.training import train as train_mod
+    from compact_perception.learning.training import train as train_mod
 
     calls = iter(scores)
 
@@ -216,8 +216,8 @@ def test_two_process_gloo_matches_one_process(tmp_path, params_dict, root):
 def test_single_task_arm_trains_and_scores_a_one_task_network(tmp_path, params_dict):
     """A study arm with ``single`` weighting trains the network built for its task alone (the
     checkpoint says which), and the test scores are that task's only."""
-    from compact_perception.evaluate import evaluate_run
-    from compact_perception.weighting import network_tasks
+    from compact_perception.evaluation.evaluate import evaluate_run
+    from compact_perception.learning.weighting import network_tasks
 
     params = tiny_params(params_dict, epochs=1)
     recipe = params.study_recipe("single_ls")

@@ -81,7 +81,7 @@ def test_checkpoint_bytes_do_not_depend_on_the_temporary_name(tmp_path):
     torch.save given a path names the archive's root folder after the file, so the bytes must
     be written through an open file to be the same on every run."""
     from compact_perception.core import io
-    from compact_perception.training.checkpoint import save
+    from compact_perception.learning.training.checkpoint import save
 
     state = {"model": {"w": torch.arange(6.0).reshape(2, 3)}, "epoch": 1}
     written = []

@@ -8,7 +8,7 @@ import pytest
 import torch
 from torch import nn
 
-from compact_perception.weighting import (
+from compact_perception.learning.weighting import (
     WEIGHTINGS,
     GradNormWeighting,
     MGNWeighting,

@@ -16,7 +16,7 @@ import torch
 from pydantic import ValidationError
 from torch import nn
 
-from compact_perception.weighting import (
+from compact_perception.learning.weighting import (
     WEIGHTINGS,
     CAGradParams,
     CAGradWeighting,
@@ -167,7 +167,7 @@ def test_weighting_settings_are_checked_by_their_method_schema(params_dict, wher
     """A recipe's section passes the params schema (it is a mapping named after the weighting) and
     is checked by its method's own schema when a stage starts: one line naming the key."""
     from compact_perception.core.config import ParamsError, parse_params
-    from compact_perception.weighting import weighting_settings
+    from compact_perception.learning.weighting import weighting_settings
 
     node = params_dict
     for key in where[:-1]:

@@ -9,11 +9,11 @@ import pytest
 
 from compact_perception.core.classes import CARLA_NAMES, CARLA_PALETTE, palette_to_index
 from compact_perception.core.config import ParamsError, parse_params
-from compact_perception.geometry import VIEWS, topview_center
-from compact_perception.world import camera as cam
-from compact_perception.world import generate as gen
-from compact_perception.world.events import dvs_events
-from compact_perception.world.generate import generate_dataset, render_episode
+from compact_perception.data.geometry import VIEWS, topview_center
+from compact_perception.data.world import camera as cam
+from compact_perception.data.world import generate as gen
+from compact_perception.data.world.events import dvs_events
+from compact_perception.data.world.generate import generate_dataset, render_episode
 
 
 def _params(d: dict, res: int = 32, samples: int = 256, **world):
@@ -103,7 +103,7 @@ def test_identical_images_give_no_events():
 
 def test_static_scene_gives_no_events(params_dict, monkeypatch):
     """A step that repeats the previous one (ego and actors frozen, no rain) gives zero events."""
-    from compact_perception.world import actors
+    from compact_perception.data.world import actors
 
     monkeypatch.setattr(actors, "EGO_STEP_M", 0.0)
     monkeypatch.setattr(actors.Episode, "state", lambda self, step, _o=actors.Episode.state: _o(self, 0))
@@ -156,7 +156,7 @@ def test_night_and_rain_hurt_rgb_not_lidar(params_dict):
 
 
 def test_towns_differ(params_dict):
-    from compact_perception.world.town import build_town
+    from compact_perception.data.world.town import build_town
 
     towns = [build_town(f"town0{k}") for k in range(1, 6)]
     sizes = {t.size_m for t in towns}

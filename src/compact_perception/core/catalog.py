@@ -1,7 +1,7 @@
 """The registries of what the pipeline knows: tasks, datasets and models (issue "one source of
 truth"). Id lists, report labels, table columns and metric directions all derive from here;
 ``dvc.yaml``'s lists are checked against it (tests/test_registries.py). Loss-weighting methods
-register their classes in :mod:`compact_perception.weighting` (each with its params schema); their
+register their classes in :mod:`compact_perception.learning.weighting` (each with its params schema); their
 report label and whether their weights adapt live here (:data:`WEIGHTING_METHODS`), so the report
 reads them without importing torch, and a class registered under an id missing here fails.
 
@@ -17,7 +17,7 @@ This module imports nothing heavy (no torch), so the config and every stage can 
 - a **dataset**: its report label and whether the embedded world simulates it;
 - a **model**: its report label, its group (``compact``: the paper's network, trained per
   ``seeds``; ``baseline``: section V-D, per ``baseline_seeds``), the LiDAR channels it reads, its
-  tasks, the network (``compact_perception.models.NETWORKS``) that builds it, its row in the
+  tasks, the network (``compact_perception.learning.models.NETWORKS``) that builds it, its row in the
   report's tables (``table_order``) and the tasks it gives "the combination of baselines"
   (``combination``, section V-D: GradNorm's DE and SS, PolarNet's LS, Chen et al.'s BEVP);
 - a **loss-weighting method**: its report label and whether its weights change during training
@@ -136,7 +136,7 @@ class WeightingInfo:
 
 
 #: The loss-weighting methods (``ModelRecipe.weighting``); their classes are in
-#: :mod:`compact_perception.weighting`, which takes ``label`` and ``adaptive`` from here.
+#: :mod:`compact_perception.learning.weighting`, which takes ``label`` and ``adaptive`` from here.
 WEIGHTING_METHODS: Registry[WeightingInfo] = Registry("loss weighting")
 WEIGHTING_METHODS.register("static")(WeightingInfo("Equal static weights", adaptive=False))
 WEIGHTING_METHODS.register("none")(WeightingInfo("No weighting (plain sum)", adaptive=False))

@@ -12,7 +12,7 @@ A model's training recipe is ``train.recipe`` (the base every model shares) merg
 ``train.models.<id>`` (what that model changes): :func:`merge_recipe`, applied by the schema, so
 ``Params.train.models[id]`` is the whole recipe. A recipe's loss-weighting settings sit in a
 section named after its weighting (``mgn: {...}``), validated by that method's own schema
-(``compact_perception.weighting``), which this module does not import (no torch here).
+(``compact_perception.learning.weighting``), which this module does not import (no torch here).
 
 ``scale`` is the one switch (README "Scale"): ``default`` (a 2-core CPU, under an hour for the
 whole pipeline: set A's main ablation trained deep, the rest shallow), ``full`` (the same data,

@@ -1,7 +1,7 @@
 """The metric-depth errors beyond the paper (Eigen et al. 2014's standard set: AbsRel, SqRel, RMSE,
 RMSE log, delta < 1.25, 1.25^2, 1.25^3) and the convention they are evaluated by: the one definition
 of each (its label, definition, direction, decimals and formula), which evaluation computes
-(:func:`compact_perception.metrics.depth_errors_per_sample`, on torch tensors) and the report
+(:func:`compact_perception.learning.metrics.depth_errors_per_sample`, on torch tensors) and the report
 labels and prints (``report/tables/extra.py``), without importing torch.
 
 A new depth metric is one entry of :data:`DEPTH_METRICS`: evaluation's columns and the report's

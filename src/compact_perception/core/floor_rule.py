@@ -3,7 +3,7 @@ predictors (their ids, in the order of the report's rows, and their labels), how
 floor is taken from their test-set means (:func:`floor_of`) and a model's margin over it
 (:func:`margins`).
 
-The predictors are fitted and scored in :mod:`compact_perception.floor`, which registers a fit for
+The predictors are fitted and scored in :mod:`compact_perception.evaluation.floor`, which registers a fit for
 each id of :data:`FLOOR_PREDICTORS` (an id missing here fails there).
 """
 from __future__ import annotations

@@ -259,7 +259,7 @@ class TrainParams(Strict):
                                              "that end a run (section IV-D: 25)")
     num_workers: int = Field(ge=0, le=MAX_WORKERS, description="loader processes: any count gives the same result")
     parallel_runs: int = Field(ge=1, le=MAX_WORKERS, description="runs a stage trains side by side, each in its own "
-                               "process with num_threads threads (training/parallel.py): any count gives the "
+                               "process with num_threads threads (learning/training/parallel.py): any count gives the "
                                "same result")
     num_threads: int = Field(ge=1, le=MAX_WORKERS, description="torch intra-op threads: a threaded reduction's "
                              "result depends on the count, so it is a tracked param (determinism.set_threads)")

@@ -60,7 +60,7 @@ def _inherited(merged: Mapping[str, Any], changes: Mapping[str, Any], source: Ca
 
 class ModelRecipe(Strict):
     """One model's training recipe (``train.recipe`` merged with ``train.models.<id>``).
-    ``weighting`` names a loss weighting of the registry (``compact_perception.weighting.WEIGHTINGS``);
+    ``weighting`` names a loss weighting of the registry (``compact_perception.learning.weighting.WEIGHTINGS``);
     its settings sit in a section of the same name (``mgn: {...}``), checked against that method's
     own schema when the training or study stage starts (``weighting.weighting_settings``). Only
     the named method's section is allowed.

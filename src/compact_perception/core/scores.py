@@ -1,7 +1,7 @@
 """The scores over the four task metrics (paper section III-B): TM, eq. (6), and MV, eq. (7).
 
 Plain arithmetic on numbers or arrays (element-wise; no torch), so the catalog's score entries
-(:data:`.catalog.SCORES`) can carry them: evaluation (:mod:`compact_perception.metrics`), the
+(:data:`.catalog.SCORES`) can carry them: evaluation (:mod:`compact_perception.learning.metrics`), the
 report and the statistics (:mod:`compact_perception.stats`) all compute a score through its entry.
 """
 from __future__ import annotations

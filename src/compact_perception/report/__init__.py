@@ -15,7 +15,7 @@ plots' CSV files, the headline metrics and ``reports/index.md``, over every trai
                   reason)
 - ``scorecard``   the claim rows, their verdict counts and the scorecard's ``claims.{md,csv}``
 - ``figures``     loss-weight plots (Fig. 8), validation curves, qualitative grids (Fig. 6/7, drawn by
-                  the leaf module :mod:`compact_perception.qualitative`)
+                  the leaf module :mod:`compact_perception.data.qualitative`)
 - ``plots``       every run's validation TM and loss weights as long CSVs for ``dvc plots``
 - ``study``       the loss-balancing study (beyond the paper): ``weighting.{md,csv}`` (four metrics,
                   TM, MV, Δm against single-task networks, time per epoch) and every method's loss weights

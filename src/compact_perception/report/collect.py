@@ -66,7 +66,7 @@ log = logging.getLogger(__name__)
 #: ``seed<k>`` folder found); :func:`seeds_for` reads it.
 SeedSpec = Optional[Mapping[str, Any] | Sequence[int]]
 
-#: Blocks of metrics.json beyond the paper's (written by ``compact_perception.evaluate``).
+#: Blocks of metrics.json beyond the paper's (written by ``compact_perception.evaluation.evaluate``).
 EXTRA_KEYS: tuple[str, ...] = ("class_iou", "depth", "argmax")
 
 

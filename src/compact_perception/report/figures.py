@@ -26,7 +26,7 @@ import pandas as pd  # noqa: E402
 from matplotlib.ticker import MaxNLocator  # noqa: E402
 
 from .collect import read_summary, read_tsv_metric  # noqa: E402
-from ..qualitative import plot_qualitative, save_figure  # noqa: E402,F401  (plot_qualitative: re-export)
+from ..data.qualitative import plot_qualitative, save_figure  # noqa: E402,F401  (plot_qualitative: re-export)
 from .schema import ROW_LABEL, WEIGHT_KEYS, WEIGHT_LABEL, WEIGHT_PREFIX, weight_key, weight_task  # noqa: E402
 
 log = logging.getLogger(__name__)

@@ -7,7 +7,7 @@ LaTeX (booktabs) and CSV.
 One scoring rule for every row: eq. (5) on the raw outputs (a class counts where its output
 exceeds 0.5), the paper's, for the compact networks' sigmoid heads and the softmax baselines
 alike, with the class maps' unlabelled pixels (an LS cell no LiDAR point reached) left out for
-every row (:func:`compact_perception.metrics.labelled_only`); the arg-max rule sits beside it in
+every row (:func:`compact_perception.learning.metrics.labelled_only`); the arg-max rule sits beside it in
 the extra metrics (``extra_metrics.md``).
 
 Every model is trained once per training seed (params ``seeds``; the baselines
