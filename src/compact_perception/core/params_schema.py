@@ -203,6 +203,15 @@ class SimDatasetParams(Strict):
             raise ValueError("source 'authors' needs authors_root")
         return self
 
+    def towns_by_split(self) -> dict[str, list[str]]:
+        """The towns each split's episodes cycle through: ``split_by: town`` keeps the train towns
+        for training and the eval towns for validation and test; ``episode`` lets every split visit
+        every town (train towns first, each once)."""
+        if self.split_by == "town":
+            return {"train": list(self.train_towns), "val": list(self.eval_towns), "test": list(self.eval_towns)}
+        every = list(dict.fromkeys([*self.train_towns, *self.eval_towns]))
+        return {split: every for split in ("train", "val", "test")}
+
 
 class NuScenesParams(Strict):
     """nuScenes-lidarseg (section IV-B). With no dataroot a simulated nuScenes-format set is written."""

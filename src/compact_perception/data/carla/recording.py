@@ -77,11 +77,7 @@ def plan_recording(params: Params, dataset_id: str) -> list[EpisodePlan]:
     dp = getattr(params.datasets, dataset_id)
     cs = dp.carla
     n = params.split_counts_of(dataset_id)
-    if dp.split_by == "town":
-        towns = {"train": list(dp.train_towns), "val": list(dp.eval_towns), "test": list(dp.eval_towns)}
-    else:
-        every = list(dict.fromkeys(list(dp.train_towns) + list(dp.eval_towns)))
-        towns = {s: every for s in SPLITS}
+    towns = dp.towns_by_split()
     plan, index = [], 0
     for split in SPLITS:
         left, k = n[split], 0

@@ -179,14 +179,9 @@ def iter_episodes(params: Params, dataset_id: str) -> Iterator[dict]:
     """The episodes of :func:`plan_episodes`, in its order, planned as they are needed (a dataset's
     plan is never held in memory whole)."""
     dp = getattr(params.datasets, dataset_id)
-    F = params.frames_of(dataset_id)
     E = params.world.frames_per_episode
     n = params.split_counts_of(dataset_id)
-    if dp.split_by == "town":
-        towns = {"train": list(dp.train_towns), "val": list(dp.eval_towns), "test": list(dp.eval_towns)}
-    else:
-        allt = list(dict.fromkeys(list(dp.train_towns) + list(dp.eval_towns)))
-        towns = {s: allt for s in SPLITS}
+    towns = dp.towns_by_split()
     idx = 0
     for split in SPLITS:
         left, k = n[split], 0
