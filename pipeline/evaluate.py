@@ -25,7 +25,7 @@ from compact_perception.core.layout import evaluation_folders, floor_paths
 from compact_perception.evaluation.evaluate import evaluate_floors, evaluate_run, read_best
 from compact_perception.evaluation.floor import TRIVIAL
 from compact_perception.learning.plan import PlannedRun, dataset_runs
-from compact_perception.learning.training.parallel import Job, JobError, run_jobs
+from compact_perception.learning.training.parallel import Job, JobError, run_jobs, stage_processes
 
 from ._common import start, worker_logging
 
@@ -54,8 +54,9 @@ def main(argv: list[str] | None = None) -> None:
                                                *(r.paths for r in runs)]))
         floor = evaluate_floors(params, args.dataset, ".")
         jobs = [Job(r.name, r, cost=MODELS[r.model].epoch_cost) for r in runs]
-        run_jobs(partial(evaluate_one, params, floor=floor), jobs, params.train.parallel_runs,
-                 desc=f"evaluate {args.dataset}")
+        processes, on_gpu = stage_processes(params.train)
+        run_jobs(partial(evaluate_one, params, floor=floor), jobs, processes, desc=f"evaluate {args.dataset}",
+                 gpu=on_gpu)
     except (JobError, CacheError, RunError) as err:
         sys.exit(f"error: {err}")
     except OSError as err:  # no checkpoint (its own message), a full disk, a read-only folder

@@ -21,7 +21,7 @@ from compact_perception.core.catalog import dataset_ids, model_ids
 from compact_perception.core.config import Params, ParamsError
 from compact_perception.core.errors import RunError, os_error_line
 from compact_perception.learning.plan import PlannedRun, dataset_runs, recipe_of
-from compact_perception.learning.training.parallel import Job, JobError, run_jobs
+from compact_perception.learning.training.parallel import Job, JobError, run_jobs, stage_processes
 from compact_perception.learning.training.train import train_run
 from compact_perception.learning.weighting import weighting_settings
 
@@ -71,8 +71,9 @@ def main(argv: list[str] | None = None) -> None:
             weighting_settings(recipe_of(params, params.study.base_model, arm), args.params, compiled=compiled)
         runs = _selected(params, args)
         alone = len(runs) == 1
+        processes, on_gpu = stage_processes(params.train)
         done = run_jobs(partial(train_one, params, progress=alone), [Job(r.name, r, cost=r.cost) for r in runs],
-                        1 if alone else params.train.parallel_runs, desc=f"train {args.dataset}")
+                        1 if alone else processes, desc=f"train {args.dataset}", gpu=on_gpu)
     except (JobError, RunError, CacheError, ParamsError) as err:
         sys.exit(f"error: {err}")
     except OSError as err:  # a full disk, a read-only runs/ (a run's own writes say RunError)

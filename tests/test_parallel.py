@@ -8,12 +8,14 @@ import os
 import pickle
 from functools import partial
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 import yaml
 
 from compact_perception.core.config import parse_params
 from compact_perception.learning.plan import dataset_runs
+from compact_perception.learning.training import parallel
 from compact_perception.learning.training.parallel import Job, JobError, run_jobs
 
 from repo_params import cap_epochs, repo_params_dict
@@ -64,7 +66,7 @@ def test_a_stage_starts_its_costliest_runs_first(tmp_path, monkeypatch):
     params.write_text(yaml.safe_dump(cap_epochs(repo_params_dict(), 2), sort_keys=False))
     seen: list[Job] = []
 
-    def capture(fn, jobs, processes, desc):
+    def capture(fn, jobs, processes, desc, gpu=False):
         seen.extend(jobs)
         return [{"epochs_run": 2, "best_epoch": 1, "stop_reason": "max_epochs"}] * len(jobs)
 
@@ -122,3 +124,59 @@ def test_a_run_in_a_pool_has_the_bytes_of_the_run_alone(tmp_path):
     assert (pooled / "best.pt").read_bytes() == (alone / "best.pt").read_bytes()
     last = [torch.load(Path(p) / "last.pt", weights_only=True)["model"] for p in (alone, pooled)]
     assert all(torch.equal(last[0][k], last[1][k]) for k in last[0])
+
+
+# ----------------------------------------------------------------------------- how many side by side
+def test_parallel_runs_as_written_is_bounded_by_the_cores(monkeypatch):
+    monkeypatch.setattr(parallel, "usable_cores", lambda: 8)
+    monkeypatch.setattr("compact_perception.core.machine.usable_cores", lambda: 8)
+    assert parallel.runs_side_by_side(3, "cpu", 1) == 3
+    assert parallel.runs_side_by_side(3, "cuda", 4) == 3          # a count is a count, on any device
+    assert parallel.runs_side_by_side(64, "cuda", 1) == 8
+
+
+def test_parallel_runs_auto_fills_the_cpu_or_takes_the_measured_gpu_share(monkeypatch):
+    monkeypatch.setattr(parallel, "usable_cores", lambda: 16)
+    monkeypatch.setattr("compact_perception.core.machine.usable_cores", lambda: 16)
+    assert parallel.runs_side_by_side("auto", "cpu", 1) == 16
+    assert parallel.runs_side_by_side("auto", "cpu", 3) == 5      # cores over threads
+    assert parallel.runs_side_by_side("auto", "cpu", 32) == 1
+    assert parallel.runs_side_by_side("auto", "cuda", 1) == parallel.CUDA_RUNS_PER_GPU == 12
+    monkeypatch.setattr("compact_perception.core.machine.usable_cores", lambda: 4)
+    assert parallel.runs_side_by_side("auto", "cuda", 1) == 4     # one process per core at most
+
+
+def test_the_stage_resolves_auto_on_the_device_it_runs_on(monkeypatch):
+    """On this CPU machine ``auto`` is the usable cores over the threads, and no GPU bound applies."""
+    from compact_perception.core.machine import usable_cores
+
+    train = SimpleNamespace(device="auto", parallel_runs="auto", num_threads=1)
+    assert parallel.stage_processes(train) == (usable_cores(), False)
+    assert parallel.stage_processes(SimpleNamespace(device="cpu", parallel_runs=1, num_threads=1)) == (1, False)
+
+
+def test_each_gpu_worker_gets_its_share_of_the_memory(monkeypatch):
+    import torch
+
+    shares = []
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(torch.cuda, "set_per_process_memory_fraction", lambda f, device=None: shares.append(f))
+    parallel.bound_gpu_memory(12)
+    parallel.bound_gpu_memory(1)                                  # alone: the whole GPU
+    assert shares == [pytest.approx(0.9 / 12)]
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    parallel.bound_gpu_memory(4)                                  # no GPU: nothing to bound
+    assert shares == [pytest.approx(0.9 / 12)]
+
+
+@pytest.mark.parametrize("value, ok", [("auto", True), (2, True), (0, False), ("many", False), (True, False)])
+def test_parallel_runs_is_a_count_or_auto(value, ok):
+    from compact_perception.core.config import ParamsError
+
+    data = repo_params_dict()
+    data["train"]["parallel_runs"] = value
+    if ok:
+        assert parse_params(data).train.parallel_runs == value
+    else:
+        with pytest.raises(ParamsError, match="train.parallel_runs"):
+            parse_params(data)

@@ -50,18 +50,19 @@ def bounded(count: int) -> int:
     return min(int(count), usable_cores())
 
 
-def _value(params: Any, key: str) -> int:
+def _value(params: Any, key: str) -> Optional[int]:
+    """The count at ``key``; ``None`` for ``auto`` (chosen from the machine, never above it)."""
     node = params
     for part in key.split("."):
         node = getattr(node, part)
-    return int(node)
+    return None if node == "auto" else int(node)
 
 
 def bounded_counts_line(params: Any, keys: Iterable[str] = WORKER_COUNTS) -> Optional[str]:
     """The one line a stage logs when :func:`bounded` lowers any of its worker counts ``keys``
     (``None`` when none is above the usable cores)."""
     cores = usable_cores()
-    over = [(key, value) for key in keys if (value := _value(params, key)) > cores]
+    over = [(key, value) for key in keys if (value := _value(params, key)) is not None and value > cores]
     if not over:
         return None
     return (f"this machine lends {cores} CPU core{'' if cores == 1 else 's'}: "

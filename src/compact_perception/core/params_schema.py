@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Callable, Literal, Optional
+from typing import Any, Callable, Literal, Optional, Union
 
 from pydantic import Field, ValidationError, ValidatorFunctionWrapHandler, field_validator, model_validator
+from pydantic_core import PydanticCustomError
 
 from . import catalog
 from .params_base import (MAX_BATCH, MAX_FRAMES, MAX_SAVED_PREDICTIONS, MAX_SCENES, MAX_WORKERS, SCALES,
@@ -267,9 +268,10 @@ class TrainParams(Strict):
     early_stop_patience: Scaled[int] = Field(description="epochs without a new best validation score "
                                              "that end a run (section IV-D: 25)")
     num_workers: int = Field(ge=0, le=MAX_WORKERS, description="loader processes: any count gives the same result")
-    parallel_runs: int = Field(ge=1, le=MAX_WORKERS, description="runs a stage trains side by side, each in its own "
-                               "process with num_threads threads (learning/training/parallel.py): any count gives the "
-                               "same result")
+    parallel_runs: Union[int, Literal["auto"]] = Field(
+        description="runs a stage trains side by side, each in its own process with num_threads threads "
+                    "(learning/training/parallel.py): any count gives the same result; 'auto': on a CUDA GPU "
+                    "the measured best share of one GPU, on a CPU the usable cores over num_threads")
     num_threads: int = Field(ge=1, le=MAX_WORKERS, description="torch intra-op threads: a threaded reduction's "
                              "result depends on the count, so it is a tracked param (determinism.set_threads)")
     device: Literal["auto", "cpu", "cuda"]
@@ -287,6 +289,14 @@ class TrainParams(Strict):
     models: dict[str, ModelRecipe] = Field(description="model id -> what its recipe changes in `recipe` (null "
                                            "removes a key); read here as the merged recipe (merge_recipe)")
 
+
+    @field_validator("parallel_runs", mode="before")
+    @classmethod
+    def _runs(cls, v: Any) -> Any:
+        """A count of processes, 1 to MAX_WORKERS, or ``auto``; one message either way."""
+        if v == "auto" or (type(v) is int and 1 <= v <= MAX_WORKERS):
+            return v
+        raise PydanticCustomError("count_or_auto", "expected a count from 1 to {hi} or 'auto'", {"hi": MAX_WORKERS})
     @model_validator(mode="wrap")
     @classmethod
     def _merge_recipes(cls, data: Any, handler: ValidatorFunctionWrapHandler) -> "TrainParams":

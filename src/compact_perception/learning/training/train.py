@@ -285,15 +285,16 @@ def _open(run: RunState) -> None:
     channels = catalog.MODELS[planned.model].lidar_channels
     workers = bounded(tp.num_workers)  # at most the usable cores (core.machine): no result changes
     labelled = getattr(run.model, "labelled_maps", ())  # class maps whose labelled pixels the loader finds
+    pinned = spec.device.type == "cuda"  # page-locked host batches: the copies to the GPU do not block
     run.val_loader = make_loader(planned.paths.cache_dir, "val", channels, spec.per_rank_batch, shuffle=False,
                                  seed=spec.rng_seed, num_workers=workers, drop_last=False,
-                                 distributed=spec.dist.enabled, labelled=labelled)
+                                 distributed=spec.dist.enabled, labelled=labelled, pin_memory=pinned)
     if run.untrained_score is None:  # the Kaiming-initialised network
         run.untrained_score = selection_score(validate(run))
         log.info("%s untrained val score %.4f", planned.name, run.untrained_score)
     run.train_loader = make_loader(planned.paths.cache_dir, "train", channels, spec.per_rank_batch, shuffle=True,
                                    seed=spec.rng_seed, num_workers=workers, drop_last=True,
-                                   distributed=spec.dist.enabled, labelled=labelled)
+                                   distributed=spec.dist.enabled, labelled=labelled, pin_memory=pinned)
     if spec.dist.is_main:
         run.live = Live(str(planned.paths.live), dvcyaml=False, save_dvc_exp=False)
         for record in run.history:  # the logs hold exactly the epochs the checkpoint holds
