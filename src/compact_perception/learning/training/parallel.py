@@ -18,7 +18,7 @@ longest first (by :attr:`Job.cost`), so the last ones to finish are short.
 
 How many: ``train.parallel_runs`` as written (bounded by the usable cores), or ``auto``
 (:func:`runs_side_by_side`): on a CPU the usable cores over ``train.num_threads``; on a CUDA GPU
-:data:`CUDA_RUNS_PER_GPU`, the count measured to give the most samples/s together on one GPU,
+:data:`CUDA_RUNS_PER_GPU`, the best of the counts measured on one GPU (samples/s together),
 each worker's share of the GPU's memory bounded (:func:`bound_gpu_memory`) so that one run's peak
 cannot starve the others.
 
