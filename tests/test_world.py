@@ -286,3 +286,17 @@ def test_plan_c_splits_by_episode(params_dict):
     assert n == {"train": 120, "val": 40, "test": 40}   # the paper's 3:1:1
     assert len({e["index"] for e in plan}) == len(plan) and len({e["seed"] for e in plan}) == len(plan)
     assert {e["town"] for e in plan if e["split"] == "train"} == {f"town0{k}" for k in range(1, 6)}
+
+
+def test_the_world_refuses_a_dataset_of_another_source(tmp_path):
+    """generate_dataset writes only 'sim' sets; another source's set is that source's, one line naming the key."""
+    from repo_params import repo_params_dict
+
+    from compact_perception.core.config import ParamsError, parse_params
+    from compact_perception.data.world.generate import generate_dataset
+
+    data = repo_params_dict()
+    data["datasets"]["B"]["source"] = "carla"
+    with pytest.raises(ParamsError, match=r"^datasets\.B\.source is 'carla': the embedded world writes only 'sim'"):
+        generate_dataset(parse_params(data), "B", tmp_path / "B")
+    assert not (tmp_path / "B").exists()

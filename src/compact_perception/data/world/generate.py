@@ -273,7 +273,8 @@ def generate_dataset(params: Params, dataset_id: str, out_dir: str | Path) -> Pa
     check_dataset_params(params, dataset_id)
     dp = getattr(params.datasets, dataset_id)
     if dp.source != "sim":
-        raise ParamsError(f"datasets.{dataset_id}.source is {dp.source!r}: the preprocess stage reads authors_root directly")
+        raise ParamsError(f"datasets.{dataset_id}.source is {dp.source!r}: the embedded world writes only "
+                          f"'sim' datasets (data/sources.py has the {dp.source!r} source's own)")
     wp = params.world
     S = params.resolution
     total, n_episodes = episode_count(params, dataset_id)
