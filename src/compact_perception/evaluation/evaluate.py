@@ -280,7 +280,7 @@ def score_test_split(model: torch.nn.Module, paths: RunPaths, how: Scoring, *, l
     device = how.device
     model.to(device).eval()
     loader = make_loader(cache_dir, "test", lidar_channels, how.batch_size, shuffle=False, seed=0, num_workers=0,
-                         drop_last=False)
+                         drop_last=False, pin_memory=torch.device(device).type == "cuda")  # non-blocking copies
     ids = read_split(cache_dir, "test", meta).frame_ids
     per_frame, counts, preds, inputs = _score_frames(model, loader, ids, n_cls, device, how.save_predictions,
                                                      f"evaluate {dataset_id}/{name}", how.depth_max_m)
