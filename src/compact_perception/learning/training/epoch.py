@@ -279,7 +279,7 @@ def train_epoch(run: RunState, epoch: int) -> dict[str, float]:
     n_steps = len(run.train_loader)
     # the bar never touches the loader: a second iter() of a persistent-worker loader would
     # draw another shuffling order, so the worker count would change the result
-    bar = tqdm(total=n_steps, desc=f"{spec.planned.name} epoch {epoch + 1}/{run.max_epochs}",
+    bar = tqdm(total=n_steps, desc=f"{spec.planned.name} epoch {epoch + 1}/{spec.planned.max_epochs}",
                disable=not (spec.dist.is_main and spec.progress), leave=False)
     try:
         for step, batch in enumerate(run.train_loader):

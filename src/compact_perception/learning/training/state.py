@@ -58,7 +58,6 @@ class RunState:
     scaler: torch.amp.GradScaler
     precision: str                     # the resolved train.precision (fp32, bf16, fp16)
     de_factor: float                   # the recipe's DE loss form (losses.de_loss_factor)
-    max_epochs: int
     lr: float                          # the lr of the next epoch (plateau schedule)
     next_epoch: int = 0
     history: list[dict] = field(default_factory=list)

@@ -223,7 +223,7 @@ def _train(spec: RunSpec) -> dict:
     if done is not None:
         return done
     _open(run)
-    for epoch in range(run.next_epoch, run.max_epochs):
+    for epoch in range(run.next_epoch, run.spec.planned.max_epochs):
         if run.stopped_early:
             break
         train_m = train_epoch(run, epoch)
@@ -255,7 +255,7 @@ def _setup(spec: RunSpec) -> RunState:
     scaler = make_grad_scaler(spec.device, precision)
     forward = maybe_compile(model, tp.compile)
     return RunState(spec, model, forward, weighting, optimizer, plateau, stopper, scaler, precision, de_factor,
-                    planned.max_epochs, lr=recipe.lr)
+                    lr=recipe.lr)
 
 
 def _resume(run: RunState) -> Optional[dict]:
@@ -338,7 +338,7 @@ def _interrupt(run: RunState, epoch: int) -> None:
     call, unless the run is at its last epoch."""
     run.epochs_this_call += 1
     limit = run.spec.stop_after_epochs
-    if limit is not None and run.epochs_this_call >= limit and epoch + 1 < run.max_epochs:
+    if limit is not None and run.epochs_this_call >= limit and epoch + 1 < run.spec.planned.max_epochs:
         if run.live is not None:
             run.live.end()
         ddp.shutdown(run.spec.dist)
@@ -372,7 +372,7 @@ def _finish(run: RunState) -> dict:
     summary = {
         "dataset": planned.dataset, "model": planned.model, "rng_seed": spec.rng_seed, "best_epoch": run.best_epoch,
         "best_val_score": run.best_score, "untrained_val_score": run.untrained_score,
-        "epochs_run": len(run.history), "max_epochs": run.max_epochs, "stopped_early": run.stopped_early,
+        "epochs_run": len(run.history), "max_epochs": run.spec.planned.max_epochs, "stopped_early": run.stopped_early,
         # why it ended (section IV-D): validation stopped improving, or the safety cap
         "stop_reason": catalog.STOP_PLATEAU if run.stopped_early else catalog.STOP_CAP,
         "train_seconds": round(run.elapsed(), 2),
