@@ -16,9 +16,11 @@ its weights; the epoch's losses and metrics are read there). Columns:
   ordinary step (the most of them) and in its last step (with the epoch's read of its sums and
   weights after it);
 - on CUDA, ``samples/s``: ``--time-steps`` ordinary steps after the counted ones (the census
-  itself slows a step down, so the timed steps run without it);
+  itself slows a step down, so the timed steps run without it), eager and replayed as a CUDA
+  graph (``train.cuda_graphs``; the reason where the run's step is not captured);
 - ``--side-by-side k ...``: k processes training the first selected run at once on the device,
-  each timed over ``--time-steps`` steps after they all warmed up (default on CUDA: 4 and 12).
+  each timed over ``--time-steps`` steps after they all warmed up (default on CUDA: 4 and 12), with
+  the captured step where the run's step can be captured.
 
 ``--sites`` prints where in the code each sync of an ordinary step happens.
 """
@@ -41,6 +43,7 @@ from compact_perception.core.config import load_params  # noqa: E402
 from compact_perception.data.loader import make_loader  # noqa: E402
 from compact_perception.learning.plan import planned_run  # noqa: E402
 from compact_perception.learning.training import distributed as ddp  # noqa: E402
+from compact_perception.learning.training.capture import capture_blocker, captured_step  # noqa: E402
 from compact_perception.learning.training.census import Census, optimizer_step_counters  # noqa: E402
 from compact_perception.learning.training.epoch import epoch_means, train_step  # noqa: E402
 from compact_perception.learning.training.state import RunSpec  # noqa: E402
@@ -94,6 +97,24 @@ def samples_per_s(run, batch: dict, steps: int, n: int) -> float:
     return n * run.spec.per_rank_batch / (time.perf_counter() - t0)
 
 
+def captured_samples_per_s(run, batch: dict, steps: int, n: int) -> tuple[float | None, str]:
+    """Samples per second of ``n`` ordinary steps replayed as a CUDA graph (``train.cuda_graphs``:
+    learning/training/capture.py), after the capture and its check against the eager step; None
+    and the reason where the step is not captured."""
+    step = captured_step(run)
+    if step is None:
+        return None, capture_blocker(run) or "train.cuda_graphs: off"
+    step(run, batch, 1, steps)  # captured, its first replay checked
+    if step.failed:
+        return None, step.failed
+    _sync(run.spec.device)
+    t0 = time.perf_counter()
+    for k in range(n):
+        step(run, batch, 1 + k % max(steps - 2, 1), steps)
+    _sync(run.spec.device)
+    return n * run.spec.per_rank_batch / (time.perf_counter() - t0), ""
+
+
 def make_params(device: torch.device, precision: str, batch: int):
     """params.yaml with the benchmark's device, precision and batch (no file written)."""
     params = load_params(ROOT / "params.yaml")
@@ -111,10 +132,16 @@ def _side_worker(job: tuple) -> float:
     loader = make_loader(Path(cache), "train", catalog.MODELS[model].lidar_channels, params.train.batch_size,
                          shuffle=False, labelled=getattr(run.model, "labelled_maps", ()))
     batch = next(iter(loader))
+    step = captured_step(run) or train_step  # the captured step where it can be (the stage's own choice)
     for _ in range(3):
-        train_step(run, batch, 1, 3)
+        step(run, batch, 1, 3)
     barrier.wait()
-    return samples_per_s(run, batch, 3, n)
+    _sync(device)
+    t0 = time.perf_counter()
+    for _ in range(n):
+        step(run, batch, 1, 3)
+    _sync(device)
+    return n * run.spec.per_rank_batch / (time.perf_counter() - t0)
 
 
 def side_by_side(params, model: str, arm: str | None, cache: Path, tmp: Path, k: int, n: int) -> list[float]:
@@ -150,7 +177,7 @@ def main() -> None:
     print(f"device: {where}; torch {torch.__version__}; {args.precision}; {args.size} px; batch {args.batch}; "
           f"an epoch of {args.steps} steps of training.epoch.train_step")
     cols = f"{'run':<28s} {'ops':>6s} {'syncs first / mid / last':>26s}"
-    print(cols + ("  samples/s" if device.type == "cuda" else ""))
+    print(cols + ("  samples/s eager / CUDA graph" if device.type == "cuda" else ""))
     from synthetic import make_cache
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -169,6 +196,8 @@ def main() -> None:
                     f"{counts[0].syncs:>12d} / {mid.syncs:>3d} / {counts[-1].syncs:>3d}")
             if device.type == "cuda":
                 line += f"  {samples_per_s(run, batch, args.steps, args.time_steps):9.1f}"
+                rate, why = captured_samples_per_s(run, batch, args.steps, args.time_steps)
+                line += f" / {rate:9.1f}" if rate is not None else f" / not captured: {why}"
             print(line, flush=True)
             if args.sites:
                 for site, n in mid.sites.most_common():

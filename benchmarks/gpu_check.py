@@ -10,6 +10,11 @@ On a CUDA device (the default) it runs, at the paper's 128 px:
   setup step); compact_15l_mgn_authors (MGN, ``authors_mode: true``) does its weight update under
   autocast on the last step and the check asserts the weights stay finite and moved, unless the
   GradScaler skipped that step (the update is then dropped with it, and the row says so);
+- ``captured step``: the training step replayed as a CUDA graph (``train.cuda_graphs``,
+  learning/training/capture.py) for an MGN network (SGD) and Chen et al. (fused Adam), fp32 and
+  bf16: two epochs of four steps, the two between each epoch's first and last replayed, against
+  the same run stepped eagerly; the networks must be the same bytes (on a CPU the same buffer path
+  runs uncaptured);
 - ``pipeline.train``: the real stage on a tiny synthetic cache (tests/synthetic.py) with a params
   file in a temporary folder: one epoch interrupted, then ``python -m pipeline.train`` resumes it,
   finishes, and writes best.pt, last.pt and the ONNX export's summary (checked); the same run
@@ -53,7 +58,8 @@ from compact_perception.core import catalog  # noqa: E402
 from compact_perception.core.config import load_params  # noqa: E402
 from compact_perception.data.loader import make_loader  # noqa: E402
 from compact_perception.learning.training import distributed as ddp  # noqa: E402
-from compact_perception.learning.training.epoch import train_step  # noqa: E402
+from compact_perception.learning.training.capture import CapturedStep, Uncaptured, capture_blocker  # noqa: E402
+from compact_perception.learning.training.epoch import epoch_means, train_step  # noqa: E402
 from compact_perception.learning.training.precision import cpu_has_native_bf16  # noqa: E402
 from compact_perception.learning.plan import planned_run  # noqa: E402
 from compact_perception.learning.training.state import RunSpec  # noqa: E402
@@ -181,6 +187,43 @@ def check_train_steps(rows, device, cache, args) -> None:
                     run = build_run(params, model_id, device, cache, Path(tmp))
                     _expect(run.precision == precision, f"resolved precision {run.precision}")
                     return steps_of(run, one_batch(cache, model_id, args.batch), args.steps)
+
+            run_check(rows, name, device, precision, fn)
+
+
+def check_captured_steps(rows, device, cache, args) -> None:
+    """Two epochs of four steps replayed as a CUDA graph (on a CPU: the same buffers, uncaptured)
+    against the same run stepped eagerly: the same bytes in every parameter and buffer."""
+    for precision in ("fp32", "bf16"):
+        for model_id in ("compact_15l_mgn", "chen_bev"):
+            name = f"captured step {model_id}"
+            if device.type == "cpu" and precision == "bf16" and not cpu_has_native_bf16():
+                skip(rows, name, device, precision, "skipped: emulated bf16 on this CPU (slow); runs on CUDA")
+                continue
+            params = params_for(device, precision, args.batch)
+
+            def fn(model_id=model_id, params=params):
+                batch, n = one_batch(cache, model_id, args.batch), 4
+                with tempfile.TemporaryDirectory() as tmp:
+                    nets = []
+                    for how in ("eager", "captured"):  # one after the other: each draws its own dropout masks
+                        run = build_run(params, model_id, device, cache, Path(tmp) / how)
+                        step = train_step
+                        if how == "captured":
+                            step = run.captured if device.type == "cuda" else CapturedStep(run, Uncaptured())
+                            _expect(step is not None, f"not captured: {capture_blocker(run)}")
+                        for _ in range(2):
+                            for k in range(n):
+                                step(run, batch, k, n)
+                            epoch_means(run)
+                        nets.append([t.detach().clone() for t in run.model.state_dict().values()])
+                    _expect(step.failed is None, f"fell back: {step.failed}")
+                    _expect(step.replays == 2 * (n - 2), f"{step.replays} replays, expected {2 * (n - 2)}")
+                    diff = max(float((a.double() - b.double()).abs().max()) for a, b in zip(*nets))
+                    _expect(all(torch.equal(a, b) for a, b in zip(*nets)),
+                            f"the captured run's network differs from the eager run's by up to {diff:.3g}")
+                    how = "CUDA graph" if device.type == "cuda" else "uncaptured buffers"
+                    return f"{step.replays} steps replayed ({how}); network = eager run's, bit for bit"
 
             run_check(rows, name, device, precision, fn)
 
@@ -392,6 +435,7 @@ def main() -> None:
         work = Path(tmp)
         cache = make_cache(work / "cache", "A", size=args.size, counts=(max(args.batch, 6), 3, 1))
         check_train_steps(rows, device, cache, args)
+        check_captured_steps(rows, device, cache, args)
         check_pipeline_train(rows, device, cache, work, args)
         check_ddp(rows, device, cache, args)
         check_fps(rows, device, args)

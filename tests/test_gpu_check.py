@@ -29,6 +29,9 @@ def test_gpu_check_runs_on_a_cpu():
     fp16 = [line for line in rows if " fp16 " in line]
     assert len(fp16) == 1 and "skipped: " not in fp16[0] and "MGN" in fp16[0]  # the authors' update under the scaler
     assert "skipped: emulated fp16" in table       # all but the MGN models: slow in emulated fp16
+    captured = [line for line in table.splitlines() if line.startswith("captured step ")]
+    assert {line.split()[2] for line in captured} == {"compact_15l_mgn", "chen_bev"}
+    assert all("network = eager run's, bit for bit" in line or "skipped: emulated bf16" in line for line in captured)
     assert "pipeline.train (resume, ONNX)" in table and "resumed after epoch 1" in table
     assert "resumed = uninterrupted network (equal values)" in table
     assert "torchrun DDP steps (gloo, every weighting)" in table and "backend gloo" in table

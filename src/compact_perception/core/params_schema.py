@@ -280,6 +280,11 @@ class TrainParams(Strict):
                     "natively (precision.resolve_precision); anything but fp32 lifts the CPU kernel pins")
     channels_last: bool = Field(description="NHWC memory format for the convolutions")
     compile: bool = Field(description="torch.compile the forward (falls back to eager with one warning)")
+    cuda_graphs: Literal["auto", "off"] = Field(
+        description="auto: on a CUDA GPU, replay the ordinary training steps as a CUDA graph where the run's "
+                    "step can be captured (learning/training/capture.py; one logged line where it cannot, and "
+                    "a first replay that differs from the eager step by a bit falls back too); a CPU never "
+                    "captures. off: every step eager")
     deterministic: bool = Field(description="deterministic kernels where they exist, cuDNN without benchmarking, "
                                 "cuBLAS's deterministic workspace (determinism.set_determinism; docs/gpu.md)")
     tf32: bool = Field(description="let a GPU run fp32 matrix products and convolutions in TF32 (faster, fewer "

@@ -111,6 +111,7 @@ def record_problem(data: Any) -> Optional[str]:
 #: Settings that change no result (the pipeline's promise: any worker, process or run count gives
 #: the same bytes; which test frame a figure shows, how many predictions are saved).
 NEUTRAL_KEYS: tuple[str, ...] = ("world.workers", "preprocess.workers", "train.num_workers", "train.parallel_runs",
+                                 "train.cuda_graphs",  # a CPU never captures; a GPU only a step bit-equal to eager
                                  "evaluate.figure_frame", "evaluate.save_predictions")
 
 

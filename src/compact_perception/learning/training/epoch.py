@@ -26,8 +26,8 @@ from ..metrics import metric_tensors, scores_from_means, total_metric_partial
 from .precision import autocast_context, batch_to_channels_last, float_outputs
 from .state import RunState
 
-__all__ = ["EpochSums", "NonFinite", "epoch_means", "evaluate_split", "selection_score", "split_scores", "task_losses",
-           "train_epoch", "train_step", "validate"]
+__all__ = ["EpochSums", "NonFinite", "epoch_means", "evaluate_split", "prepare_batch", "selection_score", "split_scores",
+           "step_on_device", "task_losses", "train_epoch", "train_step", "validate"]
 
 
 def selection_score(metrics: dict[str, float]) -> float:
@@ -92,20 +92,25 @@ class EpochSums:
             term = v.detach().to(torch.float64) * frames
             prev = self.sums.get(k)
             if prev is None:
-                prev = torch.zeros((), dtype=torch.float64, device=term.device)
-            self.sums[k] = prev + term
+                self.sums[k] = torch.zeros((), dtype=torch.float64, device=term.device) + term
+            else:  # in place: a captured step (.capture) adds into the tensors it was captured with
+                prev.add_(term)
 
-    def watch(self, values: dict[str, torch.Tensor], step: int) -> None:
+    def watch(self, values: dict[str, torch.Tensor], step: int | torch.Tensor) -> None:
         """Record, without a host read, the step at which each of ``values`` was first not finite
-        and that value (float64: the step index and a float32's value are exact)."""
+        and that value (float64: the step index and a float32's value are exact). ``step``: the
+        index, or a 0-d float64 tensor holding it (a captured step's, set before each replay)."""
         keys = tuple(values)
         v = torch.stack([x.detach().to(torch.float64) for x in values.values()])
         first = self._first.get(keys)
         if first is None:
             first = (torch.full_like(v, math.inf), torch.zeros_like(v))
+            self._first[keys] = first
         at, value = first
         new = ~torch.isfinite(v) & torch.isinf(at)
-        self._first[keys] = (torch.where(new, float(step), at), torch.where(new, v, value))
+        mark = step if isinstance(step, torch.Tensor) else float(step)
+        value.copy_(torch.where(new, v, value))  # in place, as add()
+        at.copy_(torch.where(new, mark, at))
 
     def raise_non_finite(self, what: Callable[[str], str]) -> None:
         """:class:`NonFinite` ``non-finite <what(key)> (<value>)`` for the watched value that was
@@ -197,6 +202,16 @@ def _epoch_sums(run: RunState, step: int) -> EpochSums:
     return run.epoch_sums
 
 
+def prepare_batch(run: RunState, batch: dict) -> dict:
+    """A collated batch as the network takes it: on the run's device, expanded
+    (:func:`~compact_perception.data.loader.to_device`), in the memory format of ``train.channels_last``."""
+    spec = run.spec
+    batch = to_device(batch, spec.device, spec.num_seg_classes, dtype=spec.dtype)
+    if spec.params.train.channels_last:
+        batch = batch_to_channels_last(batch)
+    return batch
+
+
 def train_step(run: RunState, batch: dict, step: int, n_steps: int) -> tuple[dict[str, torch.Tensor], int]:
     """One optimiser step on ``batch`` (the weighting's protocol: ``before_backward``, its
     ``backward``, the data-parallel gradient mean, the optimiser step, then ``after_backward``, which
@@ -216,20 +231,32 @@ def train_step(run: RunState, batch: dict, step: int, n_steps: int) -> tuple[dic
     rank skips the step on every rank alike; the loss weights are averaged only when they changed
     since they were last averaged (at a step or at an epoch's end, DWA's: a weighting replaces ``w``
     when it changes it, never edits it in place, so an identity test tells)."""
+    batch = prepare_batch(run, batch)
+    run.optimizer.zero_grad(set_to_none=True)
+    values = step_on_device(run, batch, step, n_steps)
+    frames = next(iter(batch.values())).shape[0]
+    run.epoch_sums.n += frames
+    return values, frames
+
+
+def step_on_device(run: RunState, batch: dict, step: int, n_steps: int, *, mark: torch.Tensor | None = None,
+                   autocast_cache: bool = True) -> dict[str, torch.Tensor]:
+    """The device work of :func:`train_step` on a prepared batch (:func:`prepare_batch`), the
+    gradients already cleared: forward, losses, the weighting, backward, the optimiser step, the
+    metrics, each added to the epoch's sums (their frame count, ``sums.n``, is the caller's to add).
+    A captured step (:mod:`.capture`) runs it on fixed buffers: ``mark``, the step index as a
+    device tensor, and no autocast weight cache (a captured graph cannot keep one)."""
     spec, weighting, scaler = run.spec, run.weighting, run.scaler
     last = step == n_steps - 1
-    batch = to_device(batch, spec.device, spec.num_seg_classes, dtype=spec.dtype)
     frames = next(iter(batch.values())).shape[0]
-    run.optimizer.zero_grad(set_to_none=True)
-    if spec.params.train.channels_last:
-        batch = batch_to_channels_last(batch)
-    with autocast_context(spec.device, run.precision):  # the forward only: losses in float32 (BCE clamps)
+    with autocast_context(spec.device, run.precision, cache=autocast_cache):  # the forward only: losses in float32
         out = float_outputs(run.forward(batch))
     losses = task_losses(run.model, out, batch, run.de_factor)
     sums, loss_keys = _epoch_sums(run, step), _loss_keys(losses)
+    at = step if mark is None else mark
     values = {k: v.detach() for k, v in zip(loss_keys, losses.values())}
     sums.add(values, frames)
-    sums.watch(values, step)
+    sums.watch(values, at)
     if last:  # before any update of this step: last.pt stays good
         sums.raise_non_finite(_loss_name)
     scale_before = scaler.get_scale() if scaler.is_enabled() else 1.0
@@ -238,7 +265,7 @@ def train_step(run: RunState, batch: dict, step: int, n_steps: int) -> tuple[dic
     total = weighting.backward(losses, run.model, scaler.scale)     # with the step's weights w(t)
     values["loss_total"] = total.detach()
     sums.add({"loss_total": values["loss_total"]}, frames)
-    sums.watch({"loss_total": values["loss_total"]}, step)
+    sums.watch({"loss_total": values["loss_total"]}, at)
     if last:  # finite losses, non-finite weights (a diverged weighting)
         sums.raise_non_finite(_loss_name)
     ddp.average_gradients(list(run.model.parameters()), spec.dist)  # still scaled: an inf reaches every rank
@@ -252,9 +279,8 @@ def train_step(run: RunState, batch: dict, step: int, n_steps: int) -> tuple[dic
     with torch.no_grad():
         metrics = metric_tensors(out, batch, argmax_tasks=run.model.argmax_tasks)
     sums.add(metrics, frames)
-    sums.n += frames
     values.update(metrics)
-    return values, frames
+    return values
 
 
 def epoch_means(run: RunState) -> dict[str, float]:
@@ -282,8 +308,9 @@ def train_epoch(run: RunState, epoch: int) -> dict[str, float]:
     bar = tqdm(total=n_steps, desc=f"{spec.planned.name} epoch {epoch + 1}/{spec.planned.max_epochs}",
                disable=not (spec.dist.is_main and spec.progress), leave=False)
     try:
+        step_fn = run.captured or train_step  # a step captured as a CUDA graph (.capture), where it is
         for step, batch in enumerate(run.train_loader):
-            train_step(run, batch, step, n_steps)
+            step_fn(run, batch, step, n_steps)
             bar.update()
         means = epoch_means(run)
     except NonFinite as err:

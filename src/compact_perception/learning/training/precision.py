@@ -142,15 +142,17 @@ def resolve_precision(name: str, device: torch.device | str) -> Precision:
 
 
 # ----------------------------------------------------------------------------- autocast / scaler
-def autocast_context(device: torch.device | str, precision: str) -> AbstractContextManager[Any]:
+def autocast_context(device: torch.device | str, precision: str, cache: bool = True) -> AbstractContextManager[Any]:
     """``torch.autocast(device.type, dtype)`` for ``bf16`` / ``fp16``; ``nullcontext()`` for
     ``fp32`` (so float32 runs execute exactly the code they ran before). Wrap the model's
-    forward only; compute the losses outside, on :func:`float_outputs`."""
+    forward only; compute the losses outside, on :func:`float_outputs`. ``cache=False``: no cache
+    of the weights' low-precision casts (the same values, cast again at each use), as a step
+    captured in a CUDA graph needs."""
     if precision == "fp32":
         return nullcontext()
     if precision not in AUTOCAST_DTYPES:
         raise ValueError(f"precision {precision!r} is not one of fp32, bf16, fp16 (resolve 'auto' first)")
-    return torch.autocast(torch.device(device).type, dtype=AUTOCAST_DTYPES[precision])
+    return torch.autocast(torch.device(device).type, dtype=AUTOCAST_DTYPES[precision], cache_enabled=cache)
 
 
 def make_grad_scaler(device: torch.device | str, precision: str) -> torch.amp.GradScaler:

@@ -73,6 +73,7 @@ class RunState:
     live: Any = None                   # dvclive.Live on rank 0, None elsewhere
     synced_w: Any = None               # the weighting's w as last averaged over ranks (data-parallel runs)
     epoch_sums: Any = None             # the running epoch's losses and metrics on the device (epoch.EpochSums)
+    captured: Any = None               # the step replayed as a CUDA graph (capture.CapturedStep), or None: eager
 
     def elapsed(self) -> float:
         """Training seconds so far, earlier calls included."""

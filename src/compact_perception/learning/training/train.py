@@ -53,6 +53,7 @@ from ..models import build_model
 from ..weighting import build_weighting, network_tasks, weighting_settings
 from .checkpoint import (clear_for_start, discard_unsaved, load_resumable, mark_finished, read_checkpoint, restore,
                          save_best, save_last)
+from .capture import captured_step
 from .epoch import selection_score, split_scores, train_epoch, validate
 from .precision import make_grad_scaler, maybe_compile, resolve_precision, to_channels_last
 from .provenance import source_fingerprint
@@ -254,8 +255,10 @@ def _setup(spec: RunSpec) -> RunState:
     precision = resolve_precision(tp.precision, spec.device)
     scaler = make_grad_scaler(spec.device, precision)
     forward = maybe_compile(model, tp.compile)
-    return RunState(spec, model, forward, weighting, optimizer, plateau, stopper, scaler, precision, de_factor,
-                    lr=recipe.lr)
+    run = RunState(spec, model, forward, weighting, optimizer, plateau, stopper, scaler, precision, de_factor,
+                   lr=recipe.lr)
+    run.captured = captured_step(run)  # train.cuda_graphs: None on a CPU and wherever a step cannot be captured
+    return run
 
 
 def _resume(run: RunState) -> Optional[dict]:

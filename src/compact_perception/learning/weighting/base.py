@@ -55,6 +55,12 @@ class LossWeighting:
     adaptive: ClassVar[bool] = True
     grad_scale: float = 1.0
 
+    #: Whether a training step of this method can be captured as a CUDA graph
+    #: (:mod:`compact_perception.learning.training.capture`): its ordinary steps (neither the first
+    #: nor the last of an epoch) do the same device work whatever the step, read nothing from the
+    #: device, change no Python-side state and replace none of its tensors (in-place updates only).
+    capturable: bool = False
+
     def __init__(
         self,
         tasks: Sequence[str],

@@ -46,6 +46,8 @@ class DWAWeighting(LossWeighting):
     reads them once.
     """
 
+    capturable = True  # a step adds to its sums in place; w changes at the epoch's end
+
     params_model = DWAParams
 
     def __init__(self, tasks: Sequence[str], *, temperature: float, plateau_patience: int,
@@ -74,8 +76,8 @@ class DWAWeighting(LossWeighting):
             raise KeyError(f"losses lack task(s) {missing}; got {sorted(losses)}")
         v = torch.stack([losses[t].detach().to(device=self.device, dtype=torch.float64) for t in self.tasks])
         finite = torch.isfinite(v)
-        self.sums = torch.where(finite, self.sums + v, self.sums)
-        self.counts = self.counts + finite.to(torch.int64)
+        self.sums.copy_(torch.where(finite, self.sums + v, self.sums))  # in place: a captured step's tensors
+        self.counts.add_(finite.to(torch.int64))
 
     def weights_from(self, older: Sequence[float], newer: Sequence[float]) -> Tensor:
         """Eq. (7) from the epoch means ``L(t-2)`` (``older``) and ``L(t-1)`` (``newer``)."""

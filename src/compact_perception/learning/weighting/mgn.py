@@ -275,6 +275,8 @@ class MGNWeighting(GradNormCore):
     ``total()`` would receive from that step's backward).
     """
 
+    capturable = True  # an ordinary step is eq. (8)'s backward with w(t); the update is at the epoch's last
+
     params_model = MgnParams
 
     def __init__(self, tasks: Sequence[str], shared: Mapping[str, Sequence[str]] | None = None, *,

@@ -28,6 +28,7 @@ class SingleTaskWeighting(LossWeighting):
     """One-hot weights: eq. (8) reduces to the loss of ``task``."""
 
     params_model = SingleTaskParams
+    capturable = True
 
     @classmethod
     def network_tasks(cls, recipe: Any, tasks: Sequence[str]) -> tuple[str, ...]:

@@ -11,6 +11,7 @@ class StaticWeighting(LossWeighting):
     """Fixed weights (default all 1, eq. 8 with w_i = 1); nothing adapts."""
 
     params_model = None
+    capturable = True
 
 
 @register("none")
