@@ -141,6 +141,50 @@ def test_channels_last_conversion_keeps_values_and_outputs() -> None:
         assert torch.allclose(got[k], ref[k], atol=1e-5), k
 
 
+def test_channels_last_on_the_inputs_only_leaves_the_targets_as_they_are() -> None:
+    """``train.channels_last: inputs``: the network's inputs in NHWC, every target map untouched
+    (the same tensor, no copy)."""
+    batch = {"rgb": torch.rand(2, 4, 3, 8, 8), "dvs": torch.rand(2, 4, 2, 8, 8), "lidar": torch.rand(2, 5, 8, 8),
+             "de": torch.rand(2, 4, 1, 8, 8), "ss": torch.rand(2, 4, 3, 8, 8), "ls": torch.rand(2, 3, 8, 8),
+             "bevp": torch.rand(2, 2, 8, 8), "index": torch.arange(2)}
+    b = P.batch_to_channels_last(batch, inputs_only=True)
+    assert set(P.INPUT_KEYS) == {"rgb", "dvs", "lidar"}
+    assert b["lidar"].is_contiguous(memory_format=torch.channels_last) and not b["lidar"].is_contiguous()
+    st = b["rgb"][:, 0].stride()                         # each view NHWC, as for true
+    assert (st[1], st[3], st[2]) == (1, 3, 8 * 3)
+    assert all(torch.equal(b[k], batch[k]) for k in batch)
+    assert all(b[k] is batch[k] for k in ("de", "ss", "ls", "bevp", "index"))
+
+
+def test_channels_last_inputs_is_a_setting_and_trains(tmp_path, params_dict) -> None:
+    """``train.channels_last`` takes true, false or 'inputs' (one message otherwise); a step with
+    'inputs' leaves the targets in their own layout and its losses equal true's but in their last
+    bits (the sums run in another order); the gradients, elementwise, are the same."""
+    from compact_perception.core.config import ParamsError, parse_params
+
+    params_dict["train"]["channels_last"] = "no"
+    with pytest.raises(ParamsError, match=r"train\.channels_last: .*boolean.*'inputs'"):
+        parse_params(params_dict)
+    from test_capture import _params, _run  # a run built by the training loop's own setup
+    from synthetic import make_cache
+
+    cache = make_cache(tmp_path / "cache", size=16, counts=(2, 1, 1))
+    out = {}
+    for layout in (True, "inputs"):
+        params = _params(params_dict, channels_last=layout)
+        run, batches = _run(params, "compact_15l", None, cache, tmp_path / str(layout))
+        from compact_perception.learning.training.epoch import prepare_batch, train_step
+
+        ready = prepare_batch(run, batches[0])
+        assert ready["bevp"].is_contiguous(memory_format=torch.channels_last) == (layout is True)
+        assert ready["lidar"].is_contiguous(memory_format=torch.channels_last)
+        values, _ = train_step(run, batches[0], 0, 3)
+        out[layout] = (values, [p.grad.clone() for p in run.model.parameters()])
+    (v1, g1), (v2, g2) = out[True], out["inputs"]
+    assert all(torch.allclose(v1[k], v2[k], rtol=1e-6, atol=0) for k in v1)
+    assert all(torch.equal(a, b) for a, b in zip(g1, g2))
+
+
 # ----------------------------------------------------------------------------- compile fallback
 class _Dict(nn.Module):
     def __init__(self) -> None:

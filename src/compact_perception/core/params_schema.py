@@ -278,7 +278,11 @@ class TrainParams(Strict):
     precision: Literal["fp32", "bf16", "fp16", "auto"] = Field(
         description="fp32 (bit-reproducible), bf16/fp16 autocast, or auto: the fastest the hardware runs "
                     "natively (precision.resolve_precision); anything but fp32 lifts the CPU kernel pins")
-    channels_last: bool = Field(description="NHWC memory format for the convolutions")
+    channels_last: Union[bool, Literal["inputs"]] = Field(
+        description="NHWC memory format for the convolutions: true, the network with its inputs and targets; "
+                    "'inputs', the network and its inputs only (the targets stay as the loader expands them, one "
+                    "copy less per target and step; the losses' sums then run in another order, so their last "
+                    "bits differ from true's); false, none")
     compile: bool = Field(description="torch.compile the forward (falls back to eager with one warning)")
     cuda_graphs: Literal["auto", "off"] = Field(
         description="auto: on a CUDA GPU, replay the ordinary training steps as a CUDA graph where the run's "
@@ -302,6 +306,15 @@ class TrainParams(Strict):
         if v == "auto" or (type(v) is int and 1 <= v <= MAX_WORKERS):
             return v
         raise PydanticCustomError("count_or_auto", "expected a count from 1 to {hi} or 'auto'", {"hi": MAX_WORKERS})
+
+    @field_validator("channels_last", mode="before")
+    @classmethod
+    def _layout(cls, v: Any) -> Any:
+        """true, false or ``inputs``; one message otherwise."""
+        if type(v) is bool or v == "inputs":
+            return v
+        raise PydanticCustomError("bool_or_inputs", "expected a boolean (true or false) or 'inputs'")
+
     @model_validator(mode="wrap")
     @classmethod
     def _merge_recipes(cls, data: Any, handler: ValidatorFunctionWrapHandler) -> "TrainParams":

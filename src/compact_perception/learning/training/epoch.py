@@ -204,11 +204,13 @@ def _epoch_sums(run: RunState, step: int) -> EpochSums:
 
 def prepare_batch(run: RunState, batch: dict) -> dict:
     """A collated batch as the network takes it: on the run's device, expanded
-    (:func:`~compact_perception.data.loader.to_device`), in the memory format of ``train.channels_last``."""
+    (:func:`~compact_perception.data.loader.to_device`), in the memory format of ``train.channels_last``
+    (``true``: inputs and targets; ``inputs``: the inputs only)."""
     spec = run.spec
     batch = to_device(batch, spec.device, spec.num_seg_classes, dtype=spec.dtype)
-    if spec.params.train.channels_last:
-        batch = batch_to_channels_last(batch)
+    layout = spec.params.train.channels_last
+    if layout:
+        batch = batch_to_channels_last(batch, inputs_only=layout == "inputs")
     return batch
 
 

@@ -195,9 +195,15 @@ def tensor_to_channels_last(t: Tensor) -> Tensor:
     return t
 
 
-def batch_to_channels_last(batch: Mapping[str, Any]) -> dict[str, Any]:
-    """:func:`tensor_to_channels_last` on every tensor of a dict batch (inputs and targets)."""
-    return {k: tensor_to_channels_last(v) if isinstance(v, Tensor) else v for k, v in batch.items()}
+#: The network's inputs in a batch (the other maps are its targets).
+INPUT_KEYS: tuple[str, ...] = ("rgb", "dvs", "lidar")
+
+
+def batch_to_channels_last(batch: Mapping[str, Any], inputs_only: bool = False) -> dict[str, Any]:
+    """:func:`tensor_to_channels_last` on every tensor of a dict batch (inputs and targets), or on
+    its inputs only (:data:`INPUT_KEYS`)."""
+    return {k: tensor_to_channels_last(v) if isinstance(v, Tensor) and (not inputs_only or k in INPUT_KEYS) else v
+            for k, v in batch.items()}
 
 
 # ----------------------------------------------------------------------------- torch.compile
