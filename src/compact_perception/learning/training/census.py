@@ -107,10 +107,11 @@ class _Ops(TorchDispatchMode):
                 c._count(f"aten::{name}")
             elif func in (aten._to_copy.default, aten.copy_.default):
                 src = args[1] if func is aten.copy_.default else args[0]
-                dst_cpu = (args[0].device.type == "cpu" if func is aten.copy_.default
-                           else torch.device(kwargs.get("device") or src.device).type == "cpu")
-                if isinstance(src, torch.Tensor) and src.device.type != "cpu" and dst_cpu:
-                    c._count(f"aten::{name} to the CPU")
+                if isinstance(src, torch.Tensor) and src.device.type != "cpu":  # (under vmap an arg may be a number)
+                    dst_cpu = (args[0].device.type == "cpu" if func is aten.copy_.default
+                               else torch.device(kwargs.get("device") or src.device).type == "cpu")
+                    if dst_cpu:
+                        c._count(f"aten::{name} to the CPU")
         return func(*args, **kwargs)
 
 
