@@ -159,7 +159,8 @@ def test_channels_last_on_the_inputs_only_leaves_the_targets_as_they_are() -> No
 def test_channels_last_inputs_is_a_setting_and_trains(tmp_path, params_dict) -> None:
     """``train.channels_last`` takes true, false or 'inputs' (one message otherwise); a step with
     'inputs' leaves the targets in their own layout and its losses equal true's but in their last
-    bits (the sums run in another order); the gradients, elementwise, are the same."""
+    bits (the sums run in another order), and so do the gradients (the loss's gradient reaches the
+    network in the targets' layout: another kernel path)."""
     from compact_perception.core.config import ParamsError, parse_params
 
     params_dict["train"]["channels_last"] = "no"
@@ -182,7 +183,7 @@ def test_channels_last_inputs_is_a_setting_and_trains(tmp_path, params_dict) -> 
         out[layout] = (values, [p.grad.clone() for p in run.model.parameters()])
     (v1, g1), (v2, g2) = out[True], out["inputs"]
     assert all(torch.allclose(v1[k], v2[k], rtol=1e-6, atol=0) for k in v1)
-    assert all(torch.equal(a, b) for a, b in zip(g1, g2))
+    assert all(torch.allclose(a, b, rtol=1e-4, atol=1e-7) for a, b in zip(g1, g2))
 
 
 # ----------------------------------------------------------------------------- compile fallback
