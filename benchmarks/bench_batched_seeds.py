@@ -19,8 +19,9 @@ synthetic batch, after two warm-up steps. Printed per k: aten ops per step and p
 census, :mod:`compact_perception.learning.training.census`; about one kernel launch each on a
 GPU), samples/s, and, with dropout off, how far run i of the batched network is from the same
 run stepped alone (its outputs, one step's gradients and batch-norm statistics: the batched
-kernels sum in another order, so a batched run is not the bytes of a run alone). ``--compile`` adds the compiled step's samples/s and its compile time (its
-fused kernels are not aten ops, so no census).
+kernels sum in another order, so a batched run is not the bytes of a run alone). ``--compile``
+adds the compiled step's samples/s and its compile time (its fused kernels are not aten ops, so
+no census).
 """
 from __future__ import annotations
 
@@ -92,13 +93,25 @@ class Batched:
         self.params = [params[n] for n in self.names]
         self.opt = torch.optim.SGD(self.params, lr=LR, momentum=MOMENTUM, foreach=True)
 
-        def loss(p: dict, b: dict, batch: dict) -> torch.Tensor:
-            return total_loss(self.template, functional_call(base, (p, b), (batch,)), batch)
+        def forward(p: dict, b: dict, batch: dict) -> dict:
+            return functional_call(base, (p, b), (batch,))
 
+        def loss(p: dict, b: dict, batch: dict) -> torch.Tensor:
+            return total_loss(self.template, forward(p, b, batch), batch)
+
+        self.forward = vmap(forward, in_dims=(0, 0, None), randomness="different")
         self.grad = vmap(grad_and_value(loss), in_dims=(0, 0, None), randomness="different")
 
+    def _stacked(self) -> dict:
+        return {n: p.detach() for n, p in zip(self.names, self.params)}
+
+    def outputs(self, batch: dict) -> dict:
+        """Every run's outputs (stacked on a new first dimension), without a gradient."""
+        with torch.no_grad():
+            return self.forward(self._stacked(), self.buffers, batch)
+
     def gradients(self, batch: dict) -> dict:
-        g, _ = self.grad({n: p.detach() for n, p in zip(self.names, self.params)}, self.buffers, batch)
+        g, _ = self.grad(self._stacked(), self.buffers, batch)
         return g
 
     def step(self, batch: dict) -> None:
@@ -128,8 +141,6 @@ def distance(model_id: str, k: int, batch: dict, device: torch.device) -> tuple[
     the batch-norm running statistics after that step). The outputs differ by rounding (the
     batched kernels sum in another order); the gradients by more where a sigmoid output is near 1:
     the losses' gradients there scale with 1 / (1 - p)."""
-    from torch.func import functional_call, stack_module_state, vmap
-
     alone = make_models(model_id, k, device, dropout=False)
     outs, grads, stats = [], [], []
     for m in alone:
@@ -138,13 +149,9 @@ def distance(model_id: str, k: int, batch: dict, device: torch.device) -> tuple[
         total_loss(m, out, batch).backward()
         grads.append({n: p.grad for n, p in m.named_parameters()})
         stats.append({n: b for n, b in m.named_buffers() if b.is_floating_point()})
-    models = make_models(model_id, k, device, dropout=False)
-    base = copy.deepcopy(models[0]).to("meta")
-    p, b = stack_module_state(models)
-    with torch.no_grad():
-        o = vmap(lambda p, b, x: functional_call(base, (p, b), (x,)), in_dims=(0, 0, None),
-                 randomness="different")(p, b, batch)
     top = max(float(v.abs().max()) for d in outs for v in d.values())
+    # a copy of its own: the forward moves its batch-norm statistics
+    o = Batched(make_models(model_id, k, device, dropout=False)).outputs(batch)
     do = max(float((o[t][i] - outs[i][t]).abs().max()) for i in range(k) for t in outs[i]) / top
     batched = Batched(make_models(model_id, k, device, dropout=False))
     g = batched.gradients(batch)

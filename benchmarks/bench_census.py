@@ -43,7 +43,7 @@ from compact_perception.core.config import load_params  # noqa: E402
 from compact_perception.data.loader import make_loader  # noqa: E402
 from compact_perception.learning.plan import planned_run  # noqa: E402
 from compact_perception.learning.training import distributed as ddp  # noqa: E402
-from compact_perception.learning.training.capture import capture_blocker, captured_step  # noqa: E402
+from compact_perception.learning.training.capture import capture_blocker  # noqa: E402
 from compact_perception.learning.training.census import Census, optimizer_step_counters  # noqa: E402
 from compact_perception.learning.training.epoch import epoch_means, train_step  # noqa: E402
 from compact_perception.learning.training.state import RunSpec  # noqa: E402
@@ -87,12 +87,13 @@ def _sync(device: torch.device) -> None:
         torch.cuda.synchronize(device)
 
 
-def samples_per_s(run, batch: dict, steps: int, n: int) -> float:
-    """Samples per second over ``n`` ordinary steps (the device synchronised before and after)."""
+def samples_per_s(run, batch: dict, steps: int, n: int, step=train_step) -> float:
+    """Samples per second over ``n`` ordinary steps of ``step`` (the device synchronised before
+    and after)."""
     _sync(run.spec.device)
     t0 = time.perf_counter()
     for k in range(n):
-        train_step(run, batch, 1 + k % max(steps - 2, 1), steps)
+        step(run, batch, 1 + k % max(steps - 2, 1), steps)
     _sync(run.spec.device)
     return n * run.spec.per_rank_batch / (time.perf_counter() - t0)
 
@@ -101,18 +102,13 @@ def captured_samples_per_s(run, batch: dict, steps: int, n: int) -> tuple[float 
     """Samples per second of ``n`` ordinary steps replayed as a CUDA graph (``train.cuda_graphs``:
     learning/training/capture.py), after the capture and its check against the eager step; None
     and the reason where the step is not captured."""
-    step = captured_step(run)
+    step = run.captured  # train._setup's, per train.cuda_graphs
     if step is None:
         return None, capture_blocker(run) or "train.cuda_graphs: off"
     step(run, batch, 1, steps)  # captured, its first replay checked
     if step.failed:
         return None, step.failed
-    _sync(run.spec.device)
-    t0 = time.perf_counter()
-    for k in range(n):
-        step(run, batch, 1 + k % max(steps - 2, 1), steps)
-    _sync(run.spec.device)
-    return n * run.spec.per_rank_batch / (time.perf_counter() - t0), ""
+    return samples_per_s(run, batch, steps, n, step), ""
 
 
 def make_params(device: torch.device, precision: str, batch: int):
@@ -132,16 +128,11 @@ def _side_worker(job: tuple) -> float:
     loader = make_loader(Path(cache), "train", catalog.MODELS[model].lidar_channels, params.train.batch_size,
                          shuffle=False, labelled=getattr(run.model, "labelled_maps", ()))
     batch = next(iter(loader))
-    step = captured_step(run) or train_step  # the captured step where it can be (the stage's own choice)
+    step = run.captured or train_step  # the captured step where it can be (the stage's own choice)
     for _ in range(3):
         step(run, batch, 1, 3)
     barrier.wait()
-    _sync(device)
-    t0 = time.perf_counter()
-    for _ in range(n):
-        step(run, batch, 1, 3)
-    _sync(device)
-    return n * run.spec.per_rank_batch / (time.perf_counter() - t0)
+    return samples_per_s(run, batch, 3, n, step)
 
 
 def side_by_side(params, model: str, arm: str | None, cache: Path, tmp: Path, k: int, n: int) -> list[float]:

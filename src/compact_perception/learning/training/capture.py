@@ -207,7 +207,8 @@ class CapturedStep:
         try:
             self.capturer.capture(self._body(step, n_steps))
         except Exception as err:  # noqa: BLE001 - any failure to capture: the run steps eagerly
-            self._give_up(f"could not capture it ({type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''})")
+            first = str(err).splitlines()[0] if str(err) else ""
+            self._give_up(f"could not capture it ({type(err).__name__}: {first})")
             return False
         return True
 
@@ -235,8 +236,12 @@ class CapturedStep:
     def _give_up(self, why: str) -> None:
         self.failed = why
         self.capturer = None
-        log.warning("%s: training step not captured as a CUDA graph: %s; it steps eagerly",
-                    self.run.spec.planned.name, why)
+        _not_captured(self.run, why)
+
+
+def _not_captured(run: RunState, why: str) -> None:
+    """The one line a run logs when its step is not captured."""
+    log.warning("%s: training step not captured as a CUDA graph: %s; it steps eagerly", run.spec.planned.name, why)
 
 
 class _Same:
@@ -275,7 +280,6 @@ def captured_step(run: RunState) -> Optional[CapturedStep]:
     why = capture_blocker(run)
     if why is not None:
         if run.spec.device.type == "cuda":
-            log.warning("%s: training step not captured as a CUDA graph: %s; it steps eagerly",
-                        run.spec.planned.name, why)
+            _not_captured(run, why)
         return None
     return CapturedStep(run, CudaGraph(run.spec.device))
