@@ -1,4 +1,4 @@
-# Two entry points (README "Quick start"). Both set up .venv idempotently first.
+# Two entry points (README "Reproduce"). Both set up .venv idempotently first.
 PY      := .venv/bin/python
 STAMP   := .venv/.installed
 export DVC_NO_ANALYTICS := 1

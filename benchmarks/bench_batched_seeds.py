@@ -36,7 +36,9 @@ from torch import nn
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_train import synthetic_batch  # noqa: E402
+from flags import MAX_BATCH, Parser, count, frame_size  # noqa: E402
 
+from compact_perception.core.catalog import model_ids  # noqa: E402
 from compact_perception.learning.models import build_model  # noqa: E402
 from compact_perception.learning.training.census import Census  # noqa: E402
 
@@ -185,16 +187,14 @@ def compiled_rate(model_id: str, batch: dict, samples: int, steps: int, device: 
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--model", default="compact_15l")
-    ap.add_argument("--k", type=int, nargs="+", default=[1, 4, 12], help="runs (seeds) stepped together")
-    ap.add_argument("--batch", type=int, default=6)
-    ap.add_argument("--size", type=int, default=32)
-    ap.add_argument("--steps", type=int, default=5, help="timed steps per mode")
+    ap = Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--model", default="compact_15l", choices=model_ids())
+    ap.add_argument("--k", type=count(1, 64), nargs="+", default=[1, 4, 12], help="runs (seeds) stepped together")
+    ap.add_argument("--batch", type=count(1, MAX_BATCH), default=6)
+    ap.add_argument("--size", type=frame_size(16), default=32)
+    ap.add_argument("--steps", type=count(1), default=5, help="timed steps per mode")
     ap.add_argument("--compile", action="store_true", help="also time a torch.compile'd step (slow to compile)")
     args = ap.parse_args()
-    if args.steps < 1 or args.batch < 1 or min(args.k) < 1:
-        sys.exit("error: --steps, --batch and every --k must be at least 1")
     device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
     where = torch.cuda.get_device_name() if device.type == "cuda" else f"CPU, {torch.get_num_threads()} threads"
     print(f"device: {where}; torch {torch.__version__}; {args.model}, fp32, {args.size} px, batch {args.batch} a run")

@@ -35,6 +35,7 @@ from typing import Any
 
 import torch
 
+from compact_perception.core.catalog import dataset_ids, model_ids
 from compact_perception.core.config import load_params
 from compact_perception.learning.models import build_model
 from compact_perception.learning.training.precision import (autocast_context, batch_to_channels_last, cpu_has_native_bf16,
@@ -44,6 +45,7 @@ from compact_perception.learning.weighting import build_weighting
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_train import synthetic_batch  # noqa: E402
+from flags import MAX_BATCH, MAX_WORKERS, Parser, count, frame_size  # noqa: E402
 
 
 @dataclass
@@ -135,19 +137,19 @@ def onnx_figures(args: argparse.Namespace) -> dict[str, float]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--model", default="compact_15l_mgn")
-    ap.add_argument("--dataset", default="A")
-    ap.add_argument("--resolutions", type=int, nargs="+", default=[64, 128])
-    ap.add_argument("--batch", type=int, default=6)
-    ap.add_argument("--rounds", type=int, default=3, help="timed steps per config (interleaved)")
-    ap.add_argument("--threads", type=int, default=None, help="torch intra-op threads (default: torch's)")
+    ap = Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--model", default="compact_15l_mgn", choices=model_ids())
+    ap.add_argument("--dataset", default="A", choices=dataset_ids())
+    ap.add_argument("--resolutions", type=frame_size(), nargs="+", default=[64, 128])
+    ap.add_argument("--batch", type=count(1, MAX_BATCH), default=6)
+    ap.add_argument("--rounds", type=count(1), default=3, help="timed steps per config (interleaved)")
+    ap.add_argument("--threads", type=count(1, MAX_WORKERS), default=None, help="torch intra-op threads (default: torch's)")
     ap.add_argument("--compile", action=argparse.BooleanOptionalAction, default=None,
                     help="time the torch.compile config at the first resolution (default: on a GPU only)")
     ap.add_argument("--full", action="store_true", help="time emulated bf16 at every resolution, every round")
     ap.add_argument("--no-onnx", action="store_true")
-    ap.add_argument("--onnx-resolution", type=int, default=128)
-    ap.add_argument("--onnx-rounds", type=int, default=5)
+    ap.add_argument("--onnx-resolution", type=frame_size(), default=128)
+    ap.add_argument("--onnx-rounds", type=count(1), default=5)
     args = ap.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)

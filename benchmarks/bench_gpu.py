@@ -11,34 +11,43 @@ machine without a GPU the same code path runs on the CPU (float32, bf16 autocast
 channels-last; CUDA graphs need CUDA and are skipped) and the output says "no GPU: CPU figures".
 Timing: :func:`compact_perception.evaluation.timing.benchmark_variants` (warm-up calls untimed, the device
 synchronised before and after every timed call, median latency); each variant's outputs are
-compared with float32 eager (max abs difference).
+compared with float32 eager (max abs difference). The determinism and precision policy is
+params.yaml's (``train.tf32``, ``train.deterministic``), as in every stage: "fp32" is float32, not TF32.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
+from pathlib import Path
 
 import torch
 
+from compact_perception.core.catalog import dataset_ids, model_ids
+from compact_perception.core.config import load_params
+from compact_perception.core.determinism import apply_policy
 from compact_perception.learning.models import DATASET_SPECS, build_model
 from compact_perception.learning.training.precision import cpu_has_native_bf16
 from compact_perception.evaluation.efficiency import device_name, dummy_batch
 from compact_perception.evaluation.timing import Variant, benchmark_variants, default_variants
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from flags import MAX_WORKERS, Parser, count, frame_size  # noqa: E402
+
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--model", default="compact_15l")
-    ap.add_argument("--dataset", default="A")
-    ap.add_argument("--resolution", type=int, default=128)
-    ap.add_argument("--warmup", type=int, default=10)
-    ap.add_argument("--runs", type=int, default=50)
+    ap = Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--model", default="compact_15l", choices=model_ids())
+    ap.add_argument("--dataset", default="A", choices=dataset_ids())
+    ap.add_argument("--resolution", type=frame_size(), default=128)
+    ap.add_argument("--warmup", type=count(0), default=10)
+    ap.add_argument("--runs", type=count(1), default=50)
     ap.add_argument("--compile", action="store_true", help="add torch.compile variants")
     ap.add_argument("--fold-bn", action="store_true",
                     help="on a CPU, add batch norm folded into the convolutions (a GPU's list has it)")
     ap.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"])
-    ap.add_argument("--threads", type=int, default=None, help="torch intra-op threads on a CPU")
+    ap.add_argument("--threads", type=count(1, MAX_WORKERS), default=None, help="torch intra-op threads on a CPU")
     ap.add_argument("--json", default=None, help="also write the results to this JSON file")
     args = ap.parse_args()
     if args.threads:
@@ -46,6 +55,8 @@ def main() -> None:
     if args.device == "cuda" and not torch.cuda.is_available():
         raise SystemExit("error: --device cuda but no CUDA device is available")
     device = torch.device("cuda" if args.device != "cpu" and torch.cuda.is_available() else "cpu")
+    train = load_params(Path(__file__).resolve().parents[1] / "params.yaml").train
+    apply_policy(device, train)  # the stages' policy: "fp32" is fp32 unless train.tf32 (docs/gpu.md)
     spec = DATASET_SPECS[args.dataset]
     torch.manual_seed(0)
     model = build_model(args.model, args.dataset).eval()
@@ -63,7 +74,8 @@ def main() -> None:
     else:
         print(f"GPU: {device_name(device)} (compute capability {'.'.join(map(str, torch.cuda.get_device_capability()))})")
     print(f"{args.model} on {args.dataset}, batch 1, {args.resolution}x{args.resolution} px, "
-          f"{args.warmup} warm-up + median of {args.runs} runs, torch {torch.__version__}")
+          f"{args.warmup} warm-up + median of {args.runs} runs, torch {torch.__version__}, params.yaml's "
+          f"train.tf32 {str(train.tf32).lower()}, train.deterministic {str(train.deterministic).lower()}")
     t0 = time.perf_counter()
     results = benchmark_variants(model, batch, device, variants, args.warmup, args.runs)
     print(f"  {'variant':<34s} {'latency ms':>10s} {'FPS':>9s} {'vs fp32':>8s} {'max|diff|':>10s}")

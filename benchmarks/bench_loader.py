@@ -38,6 +38,7 @@ from compact_perception.core import catalog  # noqa: E402
 from compact_perception.core.cache import read_meta  # noqa: E402
 from compact_perception.data.loader import make_loader  # noqa: E402
 from compact_perception.learning.training.epoch import train_step  # noqa: E402
+from flags import MAX_BATCH, MAX_WORKERS, Parser, count, frame_size, number  # noqa: E402
 
 from gpu_check import build_run, one_batch, params_for  # noqa: E402  (the run as the loop sets it up)
 
@@ -79,28 +80,26 @@ def step_demand(cache: Path, model_id: str, batch: int, steps: int) -> tuple[flo
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--cache", type=Path, default=None, help="an existing cache (default: build a synthetic one)")
-    ap.add_argument("--frames", type=int, default=240, help="training frames of the synthetic cache")
-    ap.add_argument("--size", type=int, default=128, help="frame size of the synthetic cache (px)")
-    ap.add_argument("--batch", type=int, default=6)
+    ap.add_argument("--frames", type=count(1), default=240, help="training frames of the synthetic cache")
+    ap.add_argument("--size", type=frame_size(16), default=128, help="frame size of the synthetic cache (px)")
+    ap.add_argument("--batch", type=count(1, MAX_BATCH), default=6)
     ap.add_argument("--workers", default="0,2,4", help="comma-separated loader worker counts")
     ap.add_argument("--model", default="compact_15l", choices=catalog.model_ids())
-    ap.add_argument("--steps", type=int, default=3, help="timed training steps on this CPU")
-    ap.add_argument("--gpu-tflops", type=float, default=100.0,
+    ap.add_argument("--steps", type=count(1), default=3, help="timed training steps on this CPU")
+    ap.add_argument("--gpu-tflops", type=number(0, 1e5), default=100.0,
                     help="effective GPU throughput in TFLOP/s (default 100: bf16 dense on an H100-class GPU, "
                          "a conservative share of its ~990 peak)")
-    ap.add_argument("--util", type=float, default=0.4, help="utilisation of --gpu-tflops the step reaches")
+    ap.add_argument("--util", type=number(0, 1), default=0.4, help="utilisation of --gpu-tflops the step reaches")
     ap.add_argument("--quick", action="store_true", help="4 batches per setting, workers 0,2, one step (the test)")
     args = ap.parse_args()
     try:
         workers = [int(w) for w in args.workers.split(",")]
     except ValueError:
         sys.exit(f"error: --workers: expected comma-separated integers, got {args.workers!r}")
-    if any(w < 0 for w in workers) or args.batch < 1 or args.frames < 1 or args.steps < 1:
-        sys.exit("error: --workers, --batch, --frames and --steps must be non-negative / positive")
-    if not (args.gpu_tflops > 0 and 0 < args.util <= 1):
-        sys.exit(f"error: --gpu-tflops must be > 0 and --util in (0, 1], got {args.gpu_tflops}, {args.util}")
+    if not workers or any(not 0 <= w <= MAX_WORKERS for w in workers):
+        sys.exit(f"error: --workers: expected comma-separated counts from 0 to {MAX_WORKERS}, got {args.workers!r}")
     if args.cache is not None and not (args.cache / "train").is_dir():
         sys.exit(f"error: --cache {args.cache}: no train/ split (expected a cache as docs/data-formats.md describes)")
     max_batches, steps = (4, 1) if args.quick else (None, args.steps)

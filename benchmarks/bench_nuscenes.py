@@ -35,6 +35,9 @@ from compact_perception.core.config import load_params
 from compact_perception.data.nuscenes.export import export_nuscenes_sim
 from compact_perception.data.nuscenes.ingest import ingest_nuscenes, ingest_sample, load_nuscenes, plan_ingestion
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from flags import Parser, count, frame_size  # noqa: E402
+
 TRAINVAL_KEY_FRAMES = 34149  #: key-frame samples of nuScenes v1.0-trainval (850 scenes)
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -64,11 +67,11 @@ def _png_cost(nusc, tokens: list[str], size: int) -> float:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__)
+    ap = Parser(description=__doc__)
     ap.add_argument("--params", default=str(ROOT / "params.yaml"))
-    ap.add_argument("--scenes", type=int, default=4)
-    ap.add_argument("--samples", type=int, default=8, help="samples per scene")
-    ap.add_argument("--size", type=int, default=128, help="ingest resolution in px (the paper's: 128)")
+    ap.add_argument("--scenes", type=count(1, 10_000), default=4)
+    ap.add_argument("--samples", type=count(1, 1000), default=8, help="samples per scene")
+    ap.add_argument("--size", type=frame_size(), default=128, help="ingest resolution in px (the paper's: 128)")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "out" / "bench_nuscenes.json"))
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)

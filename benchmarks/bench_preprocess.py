@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -26,6 +27,9 @@ from compact_perception.core.classes import BEV_NAMES, CARLA_NAMES
 from compact_perception.data.loader import make_loader
 from compact_perception.data.geometry import VIEWS
 from compact_perception.data.lidar import topview_15l
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from flags import MAX_WORKERS, Parser, count, frame_size  # noqa: E402
 
 
 def random_cloud(n: int, seed: int = 0) -> np.ndarray:
@@ -87,11 +91,11 @@ def footprints(cache_dir: Path, size: int) -> tuple[int, int]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--frames", type=int, default=600)
-    ap.add_argument("--size", type=int, default=128)
-    ap.add_argument("--runs", type=int, default=50)
-    ap.add_argument("--workers", type=int, default=2)
+    ap = Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--frames", type=count(1), default=600)
+    ap.add_argument("--size", type=frame_size(), default=128)
+    ap.add_argument("--runs", type=count(1), default=50)
+    ap.add_argument("--workers", type=count(1, MAX_WORKERS), default=2)
     args = ap.parse_args()
     logging.basicConfig(level=logging.WARNING)
 

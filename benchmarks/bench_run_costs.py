@@ -30,6 +30,9 @@ from bench_train import synthetic_batch  # noqa: E402
 
 from compact_perception.learning.models import build_model  # noqa: E402
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from flags import Parser, count  # noqa: E402
+
 
 def lock_rewrite_seconds(path: Path, repeats: int) -> tuple[int, float]:
     """(lines, median seconds of one round-trip load + dump of ``path``, as DVC does per stage)."""
@@ -74,9 +77,9 @@ def train_step_ms(tasks: tuple[str, ...], repeats: int, batch: int = 6, size: in
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--lock", type=Path, default=Path("dvc.lock"))
-    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--repeats", type=count(1, 1000), default=5)
     args = ap.parse_args()
     torch.set_num_threads(2)
 

@@ -9,14 +9,20 @@ from __future__ import annotations
 
 import argparse
 import statistics
+import sys
 import time
 from contextlib import nullcontext
+from pathlib import Path
 
 import torch
 
+from compact_perception.core.catalog import dataset_ids, model_ids
 from compact_perception.core.config import load_params
 from compact_perception.learning.models import build_model
 from compact_perception.learning.weighting import build_weighting
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from flags import MAX_BATCH, Parser, count, frame_size  # noqa: E402
 
 
 def synthetic_batch(model, dataset_id: str, batch: int, size: int, device, dtype) -> dict:
@@ -74,12 +80,12 @@ def time_steps(model_id, dataset_id, batch, size, device, dtype, steps, amp=Fals
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--model", default="compact_15l_mgn")
-    ap.add_argument("--dataset", default="A")
-    ap.add_argument("--resolution", type=int, default=128)
-    ap.add_argument("--batch", type=int, default=6)
-    ap.add_argument("--steps", type=int, default=4)
+    ap = Parser(description=__doc__)
+    ap.add_argument("--model", default="compact_15l_mgn", choices=model_ids())
+    ap.add_argument("--dataset", default="A", choices=dataset_ids())
+    ap.add_argument("--resolution", type=frame_size(), default=128)
+    ap.add_argument("--batch", type=count(1, MAX_BATCH), default=6)
+    ap.add_argument("--steps", type=count(1), default=4)
     args = ap.parse_args()
     device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
     name = torch.cuda.get_device_name() if device.type == "cuda" else f"CPU ({torch.get_num_threads()} threads)"

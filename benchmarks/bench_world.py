@@ -6,11 +6,16 @@ Usage: python benchmarks/bench_world.py [--frames 10] [--town town03]
 from __future__ import annotations
 
 import argparse
+import sys
 import time
+from pathlib import Path
 
-from compact_perception.core.config import load_params
+from compact_perception.core.config import TOWNS, load_params
 from compact_perception.data.world.generate import render_episode
 from compact_perception.data.world.town import build_town
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from flags import Parser, count  # noqa: E402
 
 
 def fps(params, town: str, size: int, frames: int) -> float:
@@ -23,9 +28,9 @@ def fps(params, town: str, size: int, frames: int) -> float:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--frames", type=int, default=10)
-    ap.add_argument("--town", default="town03")
+    ap = Parser()
+    ap.add_argument("--frames", type=count(1, 10_000), default=10)
+    ap.add_argument("--town", default="town03", choices=TOWNS)
     ap.add_argument("--params", default="params.yaml")
     a = ap.parse_args()
     p = load_params(a.params)

@@ -27,11 +27,13 @@ import argparse
 import dataclasses
 import json
 import logging
+import sys
 import time
 from pathlib import Path
 
 import torch
 
+from compact_perception.core.catalog import dataset_ids
 from compact_perception.core.config import Scaled, load_params
 from compact_perception.data.loader import make_loader, to_device
 from compact_perception.core.determinism import set_threads
@@ -40,6 +42,9 @@ from compact_perception.learning.models import build_model
 from compact_perception.learning.plan import planned_run
 from compact_perception.learning.training.train import run_seed, seed_everything, train_run
 from compact_perception.learning.weighting.gradnorm import GradNormWeighting
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from flags import MAX_WORKERS, Parser, count  # noqa: E402
 
 log = logging.getLogger("diagnose_gradnorm_segnet")
 MODEL = "gradnorm_segnet"
@@ -93,16 +98,16 @@ def load_best(model_id: str, ds: str, run_dir: Path) -> torch.nn.Module:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--dataset", default="A")
+    ap = Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--dataset", default="A", choices=dataset_ids())
     ap.add_argument("--params", default="params.yaml")
     ap.add_argument("--cache", default=None, help="cache of the dataset (default data/cache/<dataset>)")
     ap.add_argument("--out", default="/tmp/gns/diag", help="run folders (outside the repository)")
-    ap.add_argument("--epochs", type=int, default=None,
+    ap.add_argument("--epochs", type=count(1, 10_000), default=None,
                     help="epochs per arm (default: the gradnorm_segnet recipe's cap at params' scale)")
-    ap.add_argument("--seed", type=int, default=0, help="training seed")
+    ap.add_argument("--seed", type=count(0, 1_000_000), default=0, help="training seed")
     ap.add_argument("--arms", nargs="+", default=["gradnorm", "static"], choices=["gradnorm", "static"])
-    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--threads", type=count(1, MAX_WORKERS), default=2)
     ap.add_argument("--json", default=None, help="also write every figure to this JSON file")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")

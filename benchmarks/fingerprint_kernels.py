@@ -53,6 +53,7 @@ from typing import Any, Callable  # noqa: E402
 import torch  # noqa: E402
 from torch import Tensor, nn  # noqa: E402
 
+from compact_perception.core.catalog import dataset_ids, model_ids  # noqa: E402
 from compact_perception.core.config import load_params  # noqa: E402
 from compact_perception.core.determinism import set_threads  # noqa: E402
 from compact_perception.core.machine import cpu_name  # noqa: E402
@@ -61,6 +62,9 @@ from compact_perception.learning.losses import de_loss_factor, scale_de_loss  # 
 from compact_perception.learning.models import DATASET_SPECS, build_model, lidar_channels  # noqa: E402
 from compact_perception.learning.training.provenance import source_fingerprint  # noqa: E402
 from compact_perception.learning.weighting import LossWeighting, build_weighting  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from flags import Parser  # noqa: E402
 
 DEFAULT_MODELS = ["compact_15l", "compact_15l_mgn_authors", "polarnet", "gradnorm_segnet", "chen_bev"]
 
@@ -210,10 +214,10 @@ def fingerprint_model(model_id: str, args: argparse.Namespace, params: Any) -> d
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = Parser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--cache", default="data/cache/A")
-    ap.add_argument("--dataset", default="A", help="the dataset id of --cache (class counts)")
-    ap.add_argument("--models", nargs="+", default=DEFAULT_MODELS)
+    ap.add_argument("--dataset", default="A", choices=dataset_ids(), help="the dataset id of --cache (class counts)")
+    ap.add_argument("--models", nargs="+", default=DEFAULT_MODELS, choices=model_ids())
     ap.add_argument("--weights", type=Path, default=None, help="a training checkpoint (best.pt/last.pt) to start from")
     ap.add_argument("--out", type=Path, default=None, help="write the fingerprint as JSON here")
     ap.add_argument("--compare", type=Path, default=None, help="a fingerprint recorded on another machine")

@@ -22,17 +22,41 @@ evaluation add a fraction of a training epoch's work and are left out.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from flags import Parser, count  # noqa: E402
 
 from compact_perception.core import catalog  # noqa: E402
-from compact_perception.core.config import load_params  # noqa: E402
+from compact_perception.core.config import ParamsError, load_params  # noqa: E402
 from compact_perception.data.nuscenes.split import split_sizes  # noqa: E402
 
 #: samples/s of the first H200 measurement (12 compact runs sharing one GPU, batch 6, fp32)
 MEASURED_RATE = {"full": 430.0, "paper": 400.0}
+#: A rate past this is no GPU's (about 2000 times the measured one): a typo, refused.
+MAX_RATE = 1.0e6
+
+
+def parse_rates(items: list[str]) -> dict[str, float]:
+    """``MEASURED_RATE`` with each ``SCALE=SAMPLES_PER_S`` of ``items`` in its place: ``ValueError``
+    with one line for an unknown scale (``fulll``) or a rate that is not a finite number above 0."""
+    rates = dict(MEASURED_RATE)
+    for item in items:
+        scale, _, value = item.partition("=")
+        try:
+            rate = float(value)
+        except ValueError:
+            raise ValueError(f"--rate {item!r}: expected SCALE=SAMPLES_PER_S, e.g. full=430") from None
+        if scale not in MEASURED_RATE:
+            raise ValueError(f"--rate {item!r}: unknown scale {scale!r} (expected {' or '.join(MEASURED_RATE)}), "
+                             "e.g. full=430")
+        if not (math.isfinite(rate) and 0 < rate <= MAX_RATE):
+            raise ValueError(f"--rate {item!r}: expected samples/s above 0 and at most {MAX_RATE:g}, e.g. full=430")
+        rates[scale] = rate
+    return rates
 
 
 def train_frames(params, dataset: str) -> int:
@@ -58,22 +82,20 @@ def runs_of(params, dataset: str) -> dict[str, list[tuple[str, int]]]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--params", default=str(ROOT / "params.yaml"))
-    ap.add_argument("--epochs", type=int, default=45, help="epochs a run trains (early stopping ends it)")
+    ap.add_argument("--epochs", type=count(1, 10_000), default=45, help="epochs a run trains (early stopping ends it)")
     ap.add_argument("--rate", nargs="*", default=[], metavar="SCALE=SAMPLES_PER_S",
                     help="samples/s of the GPU at a scale (default: full=430 paper=400, the first H200 measurement)")
     args = ap.parse_args()
-    rates = dict(MEASURED_RATE)
-    for item in args.rate:
-        scale, _, value = item.partition("=")
-        try:
-            rates[scale] = float(value)
-        except ValueError:
-            sys.exit(f"error: --rate {item!r}: expected SCALE=SAMPLES_PER_S, e.g. full=430")
-    if args.epochs < 1:
-        sys.exit(f"error: --epochs must be at least 1, got {args.epochs}")
-    base = load_params(Path(args.params))
+    try:
+        rates = parse_rates(args.rate)
+    except ValueError as err:
+        sys.exit(f"error: {err}")
+    try:
+        base = load_params(Path(args.params))
+    except ParamsError as err:
+        sys.exit(f"error: {err}")
     for scale in ("full", "paper"):
         params = base.model_copy(update={"scale": scale})
         rate = rates[scale]

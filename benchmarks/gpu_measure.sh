@@ -5,14 +5,24 @@
 #   bash benchmarks/gpu_measure.sh OUT_DIR [PYTHON]
 #
 # PYTHON defaults to .venv/bin/python (on an offline GPU machine without the venv: python3 with
-# the project on PYTHONPATH). A step that fails or runs out of time is noted in OUT_DIR/summary.txt
-# and the next one runs. Steps: the GPU check (make gpu-check), the step census with eager and
-# captured samples/s at 128 px and 32 px and runs side by side, Table III's variants, seeds
-# batched against a compiled step; then gpu_cost.py at the rate just measured (fill it in by hand
-# from bench_census's side-by-side line if the parse below finds none).
+# the project on PYTHONPATH). Without a CUDA GPU it stops at once: one line, exit 1, nothing written.
+# A step that fails or runs out of time is noted in OUT_DIR/summary.txt and the next one runs.
+# Steps: the GPU check (make gpu-check), the step census with eager and captured samples/s at
+# 128 px and 32 px and runs side by side, Table III's variants, seeds batched against a compiled
+# step; then gpu_cost.py at the rate just measured (fill it in by hand from bench_census's
+# side-by-side line if the parse below finds none).
 set -u
 out=${1:?usage: bash benchmarks/gpu_measure.sh OUT_DIR [PYTHON]}
 py=${2:-.venv/bin/python}
+# No CUDA GPU (or no torch): say so in one line at once and write nothing, instead of every step
+# failing or running out its time limit (about 5 minutes) and the script exiting 0.
+gpus=$(timeout 120 "$py" -c 'import torch; print(torch.cuda.device_count() if torch.cuda.is_available() else 0)' \
+       2>/dev/null | tail -n 1)
+case "$gpus" in
+    ''|*[!0-9]*) echo "error: $py: could not import torch (expected the project's Python: .venv/bin/python," \
+                      "or python3 with the project on PYTHONPATH)" >&2; exit 1 ;;
+    0) echo "error: no CUDA GPU: torch under $py sees none (these are GPU measurements; docs/gpu.md)" >&2; exit 1 ;;
+esac
 mkdir -p "$out"
 summary="$out/summary.txt"
 : > "$summary"

@@ -1,8 +1,8 @@
-"""DVC stage benchmark: Table III quantities of every model at batch 1.
+"""DVC stage benchmark: Table III quantities of the selected models at batch 1.
 
-    python -m pipeline.benchmark [--params params.yaml] [--datasets A nuscenes]
+    python -m pipeline.benchmark [--params params.yaml] [--datasets A nuscenes] [--models ...]
 
-For each model id and dataset (A stands for the simulated sets, which share the networks;
+For each model of ``model_ids`` (as every other stage; ``--models`` names others) and dataset (A stands for the simulated sets, which share the networks;
 nuscenes for the nuScenes variants) builds the untrained network, and measures parameters,
 state_dict size, peak memory and FPS (params.benchmark.warmup / runs) at
 world.resolution at the params scale, on the GPU when there is one (train.device), else on
@@ -22,6 +22,7 @@ import torch
 
 from compact_perception.core import io
 from compact_perception.core.catalog import dataset_ids, model_ids, sim_dataset_ids
+from compact_perception.core.determinism import apply_policy
 from compact_perception.core.errors import os_error_line
 from compact_perception.learning.models import DATASET_SPECS, build_model
 from compact_perception.evaluation.efficiency import (CPU_MEMORY_METHOD, CUDA_MEMORY_METHOD, device_name,
@@ -29,26 +30,30 @@ from compact_perception.evaluation.efficiency import (CPU_MEMORY_METHOD, CUDA_ME
 
 from compact_perception.evaluation.timing import table3_inference
 
-from ._common import start
+from ._common import stage, start
 
 log = logging.getLogger("pipeline.benchmark")
 
 
+@stage
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--params", default="params.yaml")
     # Table III: one simulated set stands for all (the same networks), and nuScenes (other class counts)
     default = [sim_dataset_ids()[0], *(d for d in dataset_ids() if d not in sim_dataset_ids())]
     ap.add_argument("--datasets", nargs="+", default=default, choices=dataset_ids())
-    ap.add_argument("--models", nargs="+", default=list(model_ids()), choices=list(model_ids()))
+    ap.add_argument("--models", nargs="+", default=None, choices=list(model_ids()),
+                    help="default: params model_ids (in the registry's order)")
     ap.add_argument("--out", default="results/benchmark/efficiency.json")
     ap.add_argument("--no-onnx", action="store_true", help="skip the ONNX Runtime figures of the compact models")
     args = ap.parse_args(argv)
     params = start(args.params)
+    models = args.models or [m for m in model_ids() if m in params.model_ids]  # the registry's order, as before
     pref = params.train.device
     if pref == "cuda" and not torch.cuda.is_available():
         raise SystemExit("error: params train.device is 'cuda' but no CUDA device is available")
     device = torch.device("cuda" if pref != "cpu" and torch.cuda.is_available() else "cpu")
+    apply_policy(device, params.train)  # "eager fp32" is fp32, not TF32, as in training (docs/gpu.md)
     torch.manual_seed(params.seed)
     S = params.resolution
     bp = params.benchmark
@@ -61,7 +66,7 @@ def main(argv: list[str] | None = None) -> None:
         for ds in args.datasets:
             spec = DATASET_SPECS[ds]
             out["models"][ds] = {}
-            for m in args.models:
+            for m in models:
                 model = build_model(m, ds)
                 batch = dummy_batch(model, n_seg=spec.n_seg, has_dvs=spec.has_dvs, resolution=S,
                                     n_views=spec.n_views, device=device, seed=params.seed)

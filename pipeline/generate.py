@@ -18,9 +18,10 @@ from compact_perception.core.config import ParamsError
 from compact_perception.core.errors import RecordError, RunError, os_error_line
 from compact_perception.data.sources import data_source
 
-from ._common import start
+from ._common import stage, start
 
 
+@stage
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--dataset", required=True, choices=sim_dataset_ids())

@@ -10,12 +10,13 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ._common import start
+from ._common import stage, start
 
 from compact_perception.core.errors import os_error_line
 from compact_perception.data.nuscenes.ingest import NuScenesInputError, ingest_from_params
 
 
+@stage
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--params", default="params.yaml")

@@ -12,7 +12,7 @@ import argparse
 import logging
 import sys
 
-from ._common import start
+from ._common import stage, start
 
 from compact_perception.core import io
 from compact_perception.core.errors import os_error_line
@@ -20,6 +20,7 @@ from compact_perception.data.nuscenes import dataroot_problem
 from compact_perception.data.nuscenes.export import export_nuscenes_sim
 
 
+@stage
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--params", default="params.yaml")

@@ -14,9 +14,10 @@ from compact_perception.core.catalog import sim_dataset_ids
 from compact_perception.core.errors import RecordError, os_error_line
 from compact_perception.data.preprocess import preprocess_dataset
 
-from ._common import start
+from ._common import stage, start
 
 
+@stage
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--dataset", required=True, choices=sim_dataset_ids())

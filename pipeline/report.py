@@ -31,7 +31,7 @@ from compact_perception.report.index import build_reports
 from compact_perception.report.plateau import evidence, load_record
 from compact_perception.report.selection import select
 
-from ._common import start
+from ._common import stage, start
 
 
 def seed_lists(params: Any) -> dict[str, dict[str, list[int]]]:
@@ -40,6 +40,7 @@ def seed_lists(params: Any) -> dict[str, dict[str, list[int]]]:
     return select(params).seeds
 
 
+@stage
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--params", default="params.yaml")

@@ -11,7 +11,9 @@ complete for the same code, params and data is skipped; a killed one resumes.
 from __future__ import annotations
 
 import argparse
+import json
 import logging
+import re
 import sys
 from functools import partial
 from pathlib import Path
@@ -20,12 +22,13 @@ from compact_perception.core.cache import CacheError
 from compact_perception.core.catalog import dataset_ids, model_ids
 from compact_perception.core.config import Params, ParamsError
 from compact_perception.core.errors import RunError, os_error_line
+from compact_perception.core.params_errors import shown
 from compact_perception.learning.plan import PlannedRun, dataset_runs, recipe_of
 from compact_perception.learning.training.parallel import Job, JobError, run_jobs, stage_processes
-from compact_perception.learning.training.train import train_run
+from compact_perception.learning.training.train import run_seed, train_run
 from compact_perception.learning.weighting import weighting_settings
 
-from ._common import start, worker_logging
+from ._common import stage, start, worker_logging
 
 log = logging.getLogger("pipeline.train")
 
@@ -52,6 +55,45 @@ def _selected(params, args) -> list[PlannedRun]:
     return [r.moved(**moved) for r in runs]
 
 
+#: A run's summary.json is a few kB; a larger file in an ``--out`` folder is not one.
+MAX_SUMMARY_BYTES = 1 << 20
+#: The training seeds an ``--out`` folder's summary is matched against (its ``rng_seed``, :func:`run_seed`).
+KNOWN_SEEDS = range(1000)
+
+
+def _name(value: object) -> str:
+    """A dataset or model id as written, anything else shown bounded (a summary is a file's text)."""
+    return value if isinstance(value, str) and re.fullmatch(r"[\w.-]{1,40}", value) else shown(value)
+
+
+def other_run(params: Params, run: PlannedRun) -> str | None:
+    """What the ``--out`` folder of ``run`` holds when it is another finished run (its
+    ``summary.json``: another dataset, model or training seed), or cannot be told from one; ``None``
+    for an empty folder, an unfinished run, or a finished run of this dataset, model and seed
+    (trained again only where its code, params or data changed, as in the stage's own folders). A
+    summary whose ``rng_seed`` is no seed's under this params' ``seed`` is of this run at other params."""
+    folder, path = run.paths.run_dir, run.paths.summary
+    if not path.exists():
+        return None
+    try:
+        size = path.stat().st_size
+        held = json.loads(path.read_bytes()[:MAX_SUMMARY_BYTES]) if size <= MAX_SUMMARY_BYTES else None
+    except (OSError, ValueError, RecursionError):
+        held = None
+    if not isinstance(held, dict):
+        return (f"{folder}: its summary.json does not read as a run's summary, so the run it holds cannot be told; "
+                "give --out an empty folder or this run's own")
+    ds, model, rng = held.get("dataset"), held.get("model"), held.get("rng_seed")
+    seeds = {run_seed(params, run.dataset, k): k for k in [*KNOWN_SEEDS, run.seed]}
+    seed = seeds.get(rng) if type(rng) is int else None
+    if ds == run.dataset and model == run.model and seed in (None, run.seed):
+        return None
+    what = f"{_name(ds)}/{_name(model)}" + (f"/seed{seed}" if seed is not None else "")
+    return (f"{folder}: holds a finished run of {what} (its summary.json), not of {run.name}; give --out an empty "
+            "folder or this run's own")
+
+
+@stage
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--dataset", required=True, choices=dataset_ids())
@@ -70,6 +112,9 @@ def main(argv: list[str] | None = None) -> None:
         for arm in params.study.arm_ids:
             weighting_settings(recipe_of(params, params.study.base_model, arm), args.params, compiled=compiled)
         runs = _selected(params, args)
+        taken = other_run(params, runs[0]) if args.out is not None else None
+        if taken:
+            raise ParamsError(taken)
         alone = len(runs) == 1
         processes, on_gpu = stage_processes(params.train)
         done = run_jobs(partial(train_one, params, progress=alone), [Job(r.name, r, cost=r.cost) for r in runs],

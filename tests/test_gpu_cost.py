@@ -7,6 +7,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "benchmarks" / "gpu_cost.py"
 
@@ -48,3 +50,20 @@ def test_a_bad_rate_is_one_line():
     proc = subprocess.run([sys.executable, str(SCRIPT), "--rate", "full=fast"], cwd=ROOT, capture_output=True,
                           text=True, timeout=120)
     assert proc.returncode == 1 and proc.stderr.strip() == "error: --rate 'full=fast': expected SCALE=SAMPLES_PER_S, e.g. full=430"
+
+
+@pytest.mark.parametrize("argv,message", [
+    (["--rate", "full=-1"], "--rate 'full=-1': expected samples/s above 0 and at most 1e+06, e.g. full=430"),
+    (["--rate", "full=0"], "--rate 'full=0': expected samples/s above 0 and at most 1e+06, e.g. full=430"),
+    (["--rate", "paper=nan"], "--rate 'paper=nan': expected samples/s above 0 and at most 1e+06, e.g. full=430"),
+    (["--rate", "full=inf"], "--rate 'full=inf': expected samples/s above 0 and at most 1e+06, e.g. full=430"),
+    (["--rate", "fulll=430"], "--rate 'fulll=430': unknown scale 'fulll' (expected full or paper), e.g. full=430"),
+    (["--rate", "default=430"], "--rate 'default=430': unknown scale 'default' (expected full or paper), e.g. full=430"),
+    (["--epochs", "0"], "--epochs: expected a whole number from 1 to 10000 (got '0')"),
+    (["--epochs", "many"], "--epochs: expected a whole number from 1 to 10000 (got 'many')"),
+])
+def test_a_rate_or_count_no_gpu_has_is_refused_in_one_line(argv, message):
+    """Issue 56: rates -1 and nan printed negative and nan hours, 0 a ZeroDivisionError traceback, and
+    an unknown scale was ignored; each is now one line, exit 1, and nothing printed to stdout."""
+    proc = subprocess.run([sys.executable, str(SCRIPT), *argv], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert (proc.returncode, proc.stdout, proc.stderr) == (1, "", f"error: {message}\n")

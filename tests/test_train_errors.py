@@ -94,3 +94,37 @@ def test_checkpoint_bytes_do_not_depend_on_the_temporary_name(tmp_path):
         written.append(final.read_bytes())
     assert written[0] == written[1]
     assert torch.equal(torch.load(tmp_path / "a" / "best.pt")["model"]["w"], state["model"]["w"])
+
+
+def _files(folder):
+    return {p.relative_to(folder): (p.read_bytes(), p.stat().st_mtime_ns) for p in folder.rglob("*") if p.is_file()}
+
+
+def test_out_refuses_a_folder_holding_a_finished_run_of_another_model_or_seed(tmp_path, params_dict):
+    """``train --model compact_1l --seed 0 --out runs/A/compact_15l/seed0`` (issue 56): one line naming
+    the folder and the run it holds, exit 1, not a byte of it changed; its own run there is reused."""
+    from pipeline.train import main
+
+    cache = make_cache(tmp_path / "cache", counts=(4, 2, 2))
+    params_path = _params_file(tmp_path, params_dict, epochs=1)
+    out = tmp_path / "runs" / "A" / "compact_15l" / "seed0"
+
+    def train(model, seed):
+        try:
+            main(["--dataset", "A", "--model", model, "--seed", str(seed), "--params", str(params_path),
+                  "--cache", str(cache), "--out", str(out)])
+        except SystemExit as exc:
+            return str(exc.code)
+        return None
+
+    assert train("compact_15l", 0) is None and (out / "summary.json").is_file()
+    before = _files(out)
+    for model, seed, held in (("compact_1l", 0, "A/compact_15l/seed0"), ("compact_15l", 1, "A/compact_15l/seed0")):
+        msg = train(model, seed)
+        assert msg == (f"error: {out}: holds a finished run of {held} (its summary.json), not of A/{model}/seed{seed}; "
+                       "give --out an empty folder or this run's own"), msg
+        assert _files(out) == before
+    assert train("compact_15l", 0) is None and _files(out) == before  # its own: already complete
+    (out / "summary.json").write_text("[" * 100_000)
+    msg = train("compact_1l", 0)
+    assert msg.startswith(f"error: {out}: its summary.json does not read as a run's summary") and "\n" not in msg

@@ -1,7 +1,8 @@
 """The model-ready cache (SPEC 4, docs/ARCHITECTURE.md "Cache layout").
 
 ```
-<out_dir>/meta.json                 meta given by the caller + counts, keys, dtypes, shapes
+<out_dir>/meta.json                 meta given by the caller + counts, keys, dtypes, shapes, and
+                                    the SHA-256 of every file of every split (``sha256``)
 <out_dir>/<split>/<key>.npy         one memory-mappable array per key, first axis = frame
 <out_dir>/<split>/frame_ids.json
 ```
@@ -12,7 +13,9 @@ that split, and every later frame must carry the same keys with the same dtype a
 shape (else a ValueError naming the frame). Frames stream to disk one at a time (memory
 stays O(one frame)) into .npy files whose fixed-size header is rewritten with the final
 count at the end; everything is built inside :func:`compact_perception.core.io.atomic_dir`,
-so an error or an interruption leaves no cache directory behind.
+so an error or an interruption leaves no cache directory behind. The hashes recorded when the
+cache is written let a reader check it was not changed since (:func:`verify_cache`: a copy
+damaged in a DVC remote or on a disk), before it trusts it.
 
 A frame dict holds numpy arrays plus an optional ``"frame_id"`` (str); frames without
 one are named ``<split>_<index:06d>``. Frames come in clusters of consecutive, correlated frames
@@ -37,6 +40,8 @@ from . import io as cio
 log = logging.getLogger(__name__)
 
 CACHE_FORMAT_VERSION = 1
+#: meta.json's ``{split: {file name: SHA-256}}`` of every file of every split, recorded when written.
+HASHES_KEY = "sha256"
 _HEADER_LEN = 256  # fixed .npy header size (magic + version + len + dict), multiple of 64
 ID_KEY = "frame_id"
 
@@ -166,6 +171,8 @@ def write_cache(
         full_meta["counts"] = {name: inf["count"] for name, inf in info.items()}
         full_meta["keys"] = {name: inf["keys"] for name, inf in info.items()}
         full_meta["format_version"] = CACHE_FORMAT_VERSION
+        full_meta[HASHES_KEY] = {name: {f.name: cio.sha256_file(f) for f in sorted((tmp / name).iterdir())}
+                                 for name in info}
         cio.write_json(tmp / "meta.json", full_meta)
     log.info("wrote cache %s: %s", out_dir, full_meta["counts"])
     return out_dir
@@ -297,6 +304,36 @@ def read_meta(cache_dir: str | os.PathLike) -> dict[str, Any]:
     if not isinstance(meta, dict):
         raise CacheError(f"{path}: expected a JSON object; {_RERUN}")
     return meta
+
+
+def verify_cache(cache_dir: str | os.PathLike) -> bool:
+    """Check every file of every split of the cache against the SHA-256 its meta.json recorded when
+    the cache was written (:func:`write_cache`); :class:`CacheError` naming the first file that
+    differs (a copy damaged in a DVC remote, on a disk, or edited). ``False`` where meta.json
+    records no hashes (a cache written before they were recorded: nothing to check against)."""
+    cache_dir = Path(cache_dir)
+    meta_path = cache_dir / "meta.json"
+    recorded = read_meta(cache_dir).get(HASHES_KEY)
+    if recorded is None:
+        return False
+    if not isinstance(recorded, dict) or not all(
+            isinstance(files, dict) and all(isinstance(n, str) and Path(n).name == n and n not in ("", ".", "..")
+                                            and isinstance(h, str) for n, h in files.items())
+            for files in recorded.values()):
+        raise CacheError(f"{meta_path}: {HASHES_KEY}: expected {{split: {{file name: SHA-256}}}}; {_RERUN}")
+    for split in sorted(recorded):
+        for name, want in sorted(recorded[split].items()):
+            path = cache_dir / str(split) / name
+            try:
+                got = cio.sha256_file(path)
+            except FileNotFoundError:
+                raise CacheError(f"{path}: file not found; {meta_path} records it; {_RERUN}") from None
+            except OSError as err:
+                raise CacheError(f"{path}: unreadable ({err.strerror or err}); {_RERUN}") from None
+            if got != want:
+                raise CacheError(f"{path}: does not match the hash recorded when it was written (SHA-256 "
+                                 f"{got[:16]}..., {meta_path} records {want[:16]}...); {_RERUN}")
+    return True
 
 
 def read_cache(cache_dir: str | os.PathLike) -> CacheInfo:

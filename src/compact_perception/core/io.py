@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import hashlib
 import io as _io
 import json
 import os
@@ -79,9 +80,20 @@ def read_json(path: str | os.PathLike) -> dict[str, Any]:
         raise ReportInputError(f"{path}: missing") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as err:
         raise ReportInputError(f"{path}: not valid JSON ({err})") from None
+    except RecursionError:  # arrays or objects nested deeper than the parser's recursion limit
+        raise ReportInputError(f"{path}: not valid JSON (nested too deeply to read)") from None
     if not isinstance(data, dict):
         raise ReportInputError(f"{path}: expected a JSON object")
     return data
+
+
+def sha256_file(path: str | os.PathLike) -> str:
+    """SHA-256 (hex) of a file's bytes, read in 4 MiB chunks."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 22), b""):
+            h.update(chunk)
+    return h.hexdigest()
 
 
 def write_bytes(path: str | os.PathLike, data: bytes) -> None:

@@ -30,11 +30,11 @@ from tqdm.auto import tqdm
 from ..core import catalog, io
 from ..core.cache import read_meta, read_split
 from ..core.config import Params
-from ..core.errors import RunError, checkpoint_load_reason
-from ..core.layout import RunPaths, floor_paths
+from ..core.errors import ReportInputError, RunError, checkpoint_load_reason
+from ..core.layout import BEST_HASH_KEY, RunPaths, floor_paths
 from ..core.depth import DEPTH_FAR_M, DEPTH_LOG_K
 from ..data.loader import make_loader, to_device
-from ..core.determinism import resolve_device, set_threads
+from ..core.determinism import apply_policy, resolve_device, set_threads
 from ..learning.metrics import (DEPTH_CONVENTION, DEPTH_METRICS, DEPTH_NEAR_M, MV_DEFINITION, class_confusion, class_iou, compute_metrics,
                       depth_errors_per_sample, mean_iou, multilabel_confusion, score_terms, scores_from_means,
                       ARGMAX_TASKS, iou_argmax_per_sample)
@@ -198,6 +198,32 @@ def read_best(run: PlannedRun, *, mmap: bool = False) -> dict:
     return checkpoint
 
 
+def check_best(run: PlannedRun) -> bool:
+    """The run's ``best.pt`` against the SHA-256 its training recorded in ``summary.json`` when the
+    run finished (``best_sha256``): :class:`RunError` naming the file where they differ (a copy
+    damaged in a DVC remote or on a disk, or replaced), before the checkpoint is trusted. ``False``,
+    with one log line, where no hash is recorded (a run trained before runs recorded one, or not
+    finished): it is evaluated unchecked, as before."""
+    best, summary = run.paths.best, run.paths.summary
+    if not best.is_file():
+        return False  # read_best names it
+    try:
+        want = io.read_json(summary).get(BEST_HASH_KEY) if summary.is_file() else None
+    except ReportInputError as err:
+        raise RunError(str(err)) from None
+    if want is None:
+        log.info("%s: no hash recorded when it was written (%s has no %s); evaluated unchecked", best,
+                 summary.name, BEST_HASH_KEY)
+        return False
+    if not isinstance(want, str):
+        raise RunError(f"{summary}: {BEST_HASH_KEY}: expected a SHA-256 hex string, got {type(want).__name__}")
+    got = io.sha256_file(best)
+    if got != want:
+        raise RunError(f"{best}: does not match the hash recorded when it was written (SHA-256 {got[:16]}..., "
+                       f"{summary} records {want[:16]}...); fetch it again or retrain the run")
+    return True
+
+
 def load_trained(run: PlannedRun) -> tuple[torch.nn.Module, int]:
     """The network of the run's ``best.pt`` (:func:`read_best`; built for the tasks it was trained
     for), in eval mode, and the epoch it was saved at."""
@@ -319,15 +345,17 @@ def _write_outputs(eval_dir: Path, out_json: Path, result: dict, per_frame: pd.D
 def evaluate_run(params: Params, run: PlannedRun, floor: Mapping[str, float] | None = None) -> dict:
     """Score the run's best checkpoint on the test split of its cache into its ``metrics.json`` and
     eval folder (:func:`score_test_split`) on ``train.device`` with ``train.num_threads`` torch
-    threads (the thread count is part of the result), ``evaluate.batch_size`` frames at a time;
+    threads (the thread count is part of the result) under the training run's determinism and
+    precision policy (``train.deterministic``, ``train.tf32``: :func:`~..core.determinism.apply_policy`), ``evaluate.batch_size`` frames at a time;
     ``evaluate.save_predictions`` frames' predictions saved where the run saves them
     (``run.save_predictions``: not a study arm). ``floor``: as for :func:`score_test_split`."""
     ev = params.evaluate
     set_threads(params.train.num_threads)
+    device = resolve_device(params.train.device)
+    apply_policy(device, params.train)  # the training run's fp32 (not TF32) and deterministic kernels
     read_meta(run.paths.cache_dir)  # a missing or broken cache is named before the checkpoint is read
     model, best_epoch = load_trained(run)
-    how = Scoring(resolve_device(params.train.device), ev.save_predictions if run.save_predictions else 0,
-                  ev.depth_max_m, ev.batch_size)
+    how = Scoring(device, ev.save_predictions if run.save_predictions else 0, ev.depth_max_m, ev.batch_size)
     return score_test_split(model, run.paths, how, lidar_channels=catalog.MODELS[run.model].lidar_channels,
                             floor=floor, extra={"best_epoch": best_epoch})
 

@@ -14,8 +14,9 @@ Outputs (the run's ``paths.run_dir``, a persistent DVC output):
 - ``last.pt``      resumable state (model, optimiser, weighting, schedules, history)
 - ``best.pt``      model weights at the best validation score
 - ``live/``        dvclive logs (``live/plots/metrics/{train,val}/*.tsv``, ``lr``, ``w_*``)
-- ``summary.json`` best epoch, scores, epochs run, wall time, the device and precision it ran on;
-                   written last (= run complete)
+- ``summary.json`` best epoch, scores, epochs run, wall time, the device and precision it ran on,
+                   the SHA-256 of ``best.pt`` (``best_sha256``: evaluation checks it); written last
+                   (= run complete)
 
 :func:`train_run` checks its inputs, then runs these steps over one :class:`~.state.RunState`:
 
@@ -46,6 +47,7 @@ from ...core import catalog, io
 from ...core.config import Params
 from ...core.determinism import release_torch_pins, resolve_device, set_determinism, set_threads
 from ...core.errors import RunError
+from ...core.layout import BEST_HASH_KEY
 from ...core.machine import bounded, cpu_name
 from ...data.loader import make_loader, to_device
 from ..losses import de_loss_factor
@@ -391,6 +393,8 @@ def _finish(run: RunState) -> dict:
     if spec.dist.is_main:
         run.live.end()
         mark_finished(planned.paths.last)
+        if planned.paths.best.is_file():  # what evaluation checks the checkpoint against (a damaged copy)
+            summary[BEST_HASH_KEY] = io.sha256_file(planned.paths.best)
         io.write_json(planned.paths.summary, summary)
     ddp.barrier(spec.dist)
     ddp.shutdown(spec.dist)
