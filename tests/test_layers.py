@@ -259,7 +259,7 @@ def _chain_to_report(entry: Path) -> Optional[list[str]]:
 
 @pytest.mark.parametrize("script", sorted((ROOT / "benchmarks").glob("*.py")), ids=lambda p: p.name)
 def test_no_benchmark_script_imports_the_report(script: Path):
-    """The scripts write what the report reads (``benchmarks/record_plateau.py`` the plateau record,
+    """The scripts write what the report reads (``benchmarks/record_full.py`` the plateau record,
     whose one definition is ``core/plateau_record``, read by ``report/plateau``): none imports the
     report, so the writer and its reader share only what is below both."""
     chain = _chain_to_report(script)
@@ -268,7 +268,7 @@ def test_no_benchmark_script_imports_the_report(script: Path):
 
 def test_the_plateau_records_writer_and_reader_share_its_one_definition():
     record = f"{TOP}.core.plateau_record"
-    for user in (ROOT / "benchmarks" / "record_plateau.py", PKG / "report" / "plateau.py"):
+    for user in (ROOT / "benchmarks" / "record_full.py", PKG / "report" / "plateau.py"):
         assert record in module_imports(ROOT, user), f"{user.relative_to(ROOT)} does not read with {record}"
 
 

@@ -22,7 +22,7 @@ from imports import import_closure
 from report_fixture import MODELS, bases_with, build_tree, seed_map
 
 ROOT = Path(__file__).resolve().parents[1]
-SCRIPT = ROOT / "benchmarks" / "record_plateau.py"
+SCRIPT = ROOT / "benchmarks" / "record_full.py"
 BASELINES = ["chen_bev", "polarnet", "gradnorm_segnet"]
 
 
@@ -127,6 +127,13 @@ def _finished_tree(root: Path, params_changes: dict) -> None:
                                                   "stop_reason": "plateau", "train_seconds": 112.64}))
     (res / "metrics.json").write_text(json.dumps({"iou_bevp": {"mean": 0.29, "var": 0.01},
                                                   "floor_margin": {"iou_bevp": 0.0245}}))
+    for folder in (root / "data/eval/A/chen_bev/seed0", root / "data/eval/A/floor_pixel"):
+        folder.mkdir(parents=True)
+        (folder / "per_frame.csv").write_text("frame_id,iou_bevp\ntown02_ep0001_000,0.29\n")
+    (root / "results/A/floor_pixel").mkdir(parents=True)
+    (root / "results/A/floor_pixel/metrics.json").write_text(json.dumps({"iou_bevp": {"mean": 0.26, "var": 0.0}}))
+    (root / "data/cache/A").mkdir(parents=True)
+    (root / "data/cache/A/meta.json").write_text(json.dumps({"counts": {"train": 300, "val": 50, "test": 150}}))
 
 
 def _script(*args: str) -> subprocess.CompletedProcess:
@@ -136,11 +143,11 @@ def _script(*args: str) -> subprocess.CompletedProcess:
 def test_the_script_records_a_finished_tree_and_the_report_reads_it(tmp_path: Path) -> None:
     _finished_tree(tmp_path / "copy", {})
     out = tmp_path / "record.json"
-    done = _script("--root", str(tmp_path / "copy"), "--commit", "abc1234", "--machine", "a CPU", "--out", str(out))
+    done = _script("--dataset", "A", "--root", str(tmp_path / "copy"), "--machine", "a CPU", "--out", str(out))
     assert done.returncode == 0, done.stderr
     rec = load_record(out)
-    assert (rec.scale, rec.commit, rec.machine) == ("full", "abc1234", "a CPU")
-    assert rec.command == "dvc repro train@A evaluate@A at scale: full"
+    assert (rec.scale, rec.commit, rec.machine) == ("full", "not a git checkout", "a CPU")
+    assert rec.command.startswith("python benchmarks/record_full.py --dataset A --commit ")
     [run] = rec.runs
     assert (run.model, run.seed, run.epochs_run, run.best_epoch, run.stop_reason) == ("chen_bev", 0, 25, 16, "plateau")
     assert run.floor_margin == {"iou_bevp": 0.0245} and run.train_seconds == 112.64
@@ -152,12 +159,12 @@ def test_the_script_and_the_reader_refuse_bad_input_in_one_line(tmp_path: Path) 
     _finished_tree(tmp_path / "copy", {})
     (tmp_path / "copy/runs/A/chen_bev/seed0/summary.json").write_text(json.dumps({"epochs_run": 25}))
     out = tmp_path / "record.json"
-    done = _script("--root", str(tmp_path / "copy"), "--out", str(out))
+    done = _script("--dataset", "A", "--root", str(tmp_path / "copy"), "--out", str(out))
     assert done.returncode == 1 and not out.exists()
     assert done.stderr.strip().splitlines() == [
         f"error: {tmp_path}/copy/runs/A/chen_bev/seed0/summary.json: missing best_epoch, max_epochs, stop_reason, "
         "train_seconds"]
-    done = _script("--root", str(tmp_path / "copy"), "--models", "nope", "--out", str(out))
+    done = _script("--dataset", "A", "--root", str(tmp_path / "copy"), "--models", "nope", "--out", str(out))
     assert done.returncode == 1 and "--models: ['nope']" in done.stderr and "Traceback" not in done.stderr
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps({"version": 1, "scale": "full", "runs": [{"dataset": "A", "model": "chen_bev"}]}))
@@ -203,7 +210,7 @@ def test_a_run_that_lies_is_refused_before_the_record_is_written(tmp_path: Path,
     out = tmp_path / "full_plateau.json"
     out.write_bytes((ROOT / "benchmarks/records/full_plateau.json").read_bytes())
     before = out.read_bytes()
-    done = _script("--root", str(tmp_path / "copy"), "--out", str(out))
+    done = _script("--dataset", "A", "--root", str(tmp_path / "copy"), "--out", str(out))
     assert done.returncode == 1
     assert done.stderr.strip().splitlines() == [f"error: {path}: {problem}"], done.stderr
     assert out.read_bytes() == before                                 # the tracked record untouched

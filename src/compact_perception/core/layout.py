@@ -20,10 +20,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable
 
-__all__ = ["RunPaths", "run_paths", "study_paths", "floor_paths", "evaluation_folders", "STUDY_DIR"]
+__all__ = ["RunPaths", "run_paths", "study_paths", "floor_paths", "cache_dir", "evaluation_folders", "STUDY_DIR",
+           "BEST_HASH_KEY"]
 
 #: The folder of a dataset's study runs (not a model id: :mod:`.catalog` registers none by this name).
 STUDY_DIR = "study"
+#: The key of ``summary.json`` that records the SHA-256 of ``best.pt`` as the finished run left it
+#: (training writes it; evaluation checks the checkpoint against it before it trusts it).
+BEST_HASH_KEY = "best_sha256"
 
 
 @dataclass(frozen=True)
@@ -69,7 +73,12 @@ class RunPaths:
 def _paths(dataset: str, model: str, seed: int, root: Path | str, tail: Path) -> RunPaths:
     root = Path(root)
     return RunPaths(dataset, model, seed, root / "runs" / tail, root / "results" / tail / "metrics.json",
-                    root / "data" / "eval" / tail, root / "data" / "cache" / dataset)
+                    root / "data" / "eval" / tail, cache_dir(dataset, root))
+
+
+def cache_dir(dataset: str, root: Path | str = ".") -> Path:
+    """The cache of ``dataset`` under ``root``: ``data/cache/<ds>/`` (what preprocessing writes)."""
+    return Path(root) / "data" / "cache" / dataset
 
 
 def run_paths(dataset: str, model: str, seed: int, root: Path | str = ".") -> RunPaths:

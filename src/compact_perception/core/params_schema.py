@@ -315,6 +315,14 @@ class TrainParams(Strict):
             return v
         raise PydanticCustomError("bool_or_inputs", "expected a boolean (true or false) or 'inputs'")
 
+    @field_validator("cuda_graphs", mode="before")
+    @classmethod
+    def _graphs(cls, v: Any) -> Any:
+        """``auto`` or ``off``, where a YAML false is ``off``: ``dvc exp run -S train.cuda_graphs=off``
+        writes the word unquoted (DVC writes YAML 1.2, where it is text) and this loader (YAML 1.1)
+        reads it as false. Only this key's values include such a word (tests/test_set_param.py)."""
+        return "off" if v is False else v
+
     @model_validator(mode="wrap")
     @classmethod
     def _merge_recipes(cls, data: Any, handler: ValidatorFunctionWrapHandler) -> "TrainParams":
@@ -489,13 +497,14 @@ class Params(Strict):
         """A run's early-stopping patience at this scale (the recipe's ``early_stop_patience``)."""
         return recipe.early_stop_patience.at(self.scale)
 
-    def seeds_of(self, group: str, dataset: str) -> list[int]:
-        """The training seeds of a model group (``catalog.ModelInfo.group``) on ``dataset`` at this
-        scale: ``datasets.<ds>.training.seeds`` for ``compact``, ``baseline_seeds`` for ``baseline``."""
+    def seeds_of(self, group: str, dataset: str, scale: Optional[ScaleName] = None) -> list[int]:
+        """The training seeds of a model group (``catalog.ModelInfo.group``) on ``dataset`` at
+        ``scale`` (default: this file's): ``datasets.<ds>.training.seeds`` for ``compact``,
+        ``baseline_seeds`` for ``baseline``."""
         if group not in ("compact", "baseline"):
             raise ValueError(f"unknown model group {group!r}; known: compact, baseline")
         seeds = self.dataset(dataset).training.seeds if group == "compact" else self.baseline_seeds
-        return list(seeds.at(self.scale))
+        return list(seeds.at(scale or self.scale))
 
     def max_epochs_of(self, recipe: ModelRecipe, dataset: str, scale: Optional[ScaleName] = None) -> int:
         """The epoch cap of a run of ``recipe`` on ``dataset``: the recipe's own ``max_epochs`` where

@@ -55,7 +55,7 @@ from ..core import catalog
 from ..core.cache import frame_cluster
 from ..core.errors import ReportInputError
 from ..core.io import read_json
-from ..core.layout import RunPaths, floor_paths, run_paths
+from ..core.layout import RunPaths, cache_dir, floor_paths, run_paths
 from ..stats import Comparison, Group, make_comparison
 from .schema import COMBINATION, COMBINATION_SOURCE, FLOOR_IDS, PER_FRAME_COLUMNS, TABLE2_COLUMNS, TASK_COLUMNS
 
@@ -325,7 +325,7 @@ def collect_scale(root: Path, datasets: Sequence[str], models: Sequence[str],
     out: dict[str, DatasetScale] = {}
     for ds in datasets:
         sc = DatasetScale(ds)
-        meta = read_meta(Path(root) / "data" / "cache" / ds)
+        meta = read_meta(cache_dir(ds, root))
         if meta:
             sc.counts = {k: int(v) for k, v in (meta.get("counts") or {}).items()}
             sc.resolution = meta.get("resolution")

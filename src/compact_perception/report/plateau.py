@@ -20,13 +20,11 @@ from typing import Any, Optional, Sequence
 from ..core.catalog import MODELS, STOP_PLATEAU, metric_of
 from ..core.errors import ReportInputError
 from ..core.io import read_json
-from ..core.plateau_record import RUN_KEYS, record_problem, settings_at
+from ..core.plateau_record import RUN_KEYS, STATUS_COMPLETE, changed_keys, record_problem, settings_at
 from .schema import DATASET_LABEL, METRIC_TASK, ROW_LABEL
 
 __all__ = ["PlateauRun", "PlateauRecord", "PlateauEvidence", "changed_settings", "load_record", "evidence",
            "recorded_sentence"]
-
-_MISSING = object()
 
 @dataclass(frozen=True)
 class PlateauRun:
@@ -54,18 +52,21 @@ class PlateauRecord:
     machine: str
     command: str
     runs: tuple[PlateauRun, ...]
+    device: str = "cpu"                       # version 1 records were made on CPUs
+    data: Optional[dict[str, Any]] = None     # a version-2 record whole (its runs' files: report/full.py)
 
     def runs_of(self, model: str) -> list[PlateauRun]:
         return [r for r in self.runs if r.model == model]
 
 
-def changed_settings(run: PlateauRun, params: Any, scale: str) -> list[str]:
+def changed_settings(run: PlateauRun, params: Any, scale: str, device: str = "cpu") -> list[str]:
     """The settings keys whose value in ``params`` at ``scale`` differs from ``run``'s (added or
-    removed keys included), sorted; empty when today's params would train that run the same way."""
+    removed keys included), sorted, less those that cannot change a run on ``device``
+    (:func:`~compact_perception.core.plateau_record.changed_keys`); empty when today's params would
+    train that run the same way."""
     if run.model not in params.train.models:
         return [f"train.models.{run.model}"]
-    now = settings_at(params, run.model, run.dataset, scale)
-    return sorted(k for k in set(now) | set(run.settings) if now.get(k, _MISSING) != run.settings.get(k, _MISSING))
+    return changed_keys(run.settings, settings_at(params, run.model, run.dataset, scale), device)
 
 
 def load_record(path: Path) -> Optional[PlateauRecord]:
@@ -79,9 +80,11 @@ def load_record(path: Path) -> Optional[PlateauRecord]:
     problem = record_problem(data)
     if problem:
         raise ReportInputError(f"{path}: {problem}")
-    runs = tuple(PlateauRun(**{k: run[k] for k in RUN_KEYS}) for run in data["runs"])
+    runs = tuple(PlateauRun(**{k: run[k] for k in RUN_KEYS}) for run in data["runs"]
+                 if data["version"] == 1 or run["status"] == STATUS_COMPLETE)
     return PlateauRecord(str(path), data["scale"], str(data.get("commit", "")), str(data.get("machine", "")),
-                         str(data.get("command", "")), runs)
+                         str(data.get("command", "")), runs, str(data.get("device", "cpu")),
+                         data if data["version"] >= 2 else None)
 
 
 @dataclass(frozen=True)
@@ -97,7 +100,8 @@ def evidence(record: Optional[PlateauRecord], params: Any) -> Optional[PlateauEv
     """``record`` beside today's ``params`` (``None`` without a record)."""
     if record is None:
         return None
-    return PlateauEvidence(record, {(r.dataset, r.model, r.seed): changed_settings(r, params, record.scale)
+    return PlateauEvidence(record, {(r.dataset, r.model, r.seed): changed_settings(r, params, record.scale,
+                                                                                   record.device)
                                     for r in record.runs})
 
 

@@ -1,0 +1,168 @@
+"""The report at ``scale: full``, read from the records of runs trained there
+(``benchmarks/records/full/<ds>_<part>.json``, written by ``benchmarks/record_full.py``; version 2
+of :mod:`compact_perception.core.plateau_record`).
+
+A record holds the files the pipeline wrote for each run (``metrics.json``, ``per_frame.csv``,
+``summary.json``, the loss-weight and validation series), the dataset's floor and cache meta.
+:func:`build_full_report` writes them back as a run tree in a temporary folder
+(:func:`~compact_perception.core.plateau_record.write_tree`) and builds Table II, the metrics
+beyond the paper's, the claims scorecard and the paper comparison from it with the code that
+builds them from the default's runs (:func:`.index.read_inputs`, :func:`.index.write_tables`), so
+the two reports cannot score alike data differently. The page (``reports/full/index.md``) says, per
+dataset and model, which record (commit, machine) each row comes from and which of today's params
+keys would train it differently; a dataset or model of the params with no record is listed as not
+recorded, and a run a record has as incomplete is named.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+import tempfile
+from pathlib import Path
+from typing import Any, Optional, Sequence
+
+from ..core import io
+from ..core.catalog import MODELS
+from ..core.errors import ReportInputError
+from ..core.plateau_record import STATUS_COMPLETE, write_tree
+from .index import ReportInputs, _floor_section, _headline_section, _seeds_overview, _tables_section, read_inputs, \
+    write_tables
+from .paper import PaperNumbers, load_paper_numbers
+from .plateau import PlateauRecord, changed_settings, load_record
+from .schema import DATASET_LABEL, ROW_LABEL
+
+__all__ = ["load_records", "build_full_report", "RECORD_GLOB"]
+
+log = logging.getLogger(__name__)
+
+#: The records of ``scale: full`` in their folder (``benchmarks/records/full/``).
+RECORD_GLOB = "*.json"
+
+
+def load_records(folder: Path) -> list[PlateauRecord]:
+    """Every record of ``folder`` (:data:`RECORD_GLOB`, sorted by name); a record its schema
+    refuses raises :class:`ReportInputError` naming it."""
+    out = []
+    for path in sorted(Path(folder).glob(RECORD_GLOB)):
+        rec = load_record(path)
+        if rec is not None:
+            out.append(rec)
+    return out
+
+
+def _provenance_rows(records: Sequence[PlateauRecord], params: Any) -> tuple[list[str], dict[tuple[str, str], str]]:
+    """The table naming, per (dataset, model), the record, commit and machine its rows come from,
+    and what today's params change of its runs; and each incomplete run's line."""
+    lines = ["| dataset | model | seeds | record | commit | machine | today's params would change |",
+             "|---|---|---|---|---|---|---|"]
+    incomplete: dict[tuple[str, str], str] = {}
+    for rec in records:
+        assert rec.data is not None
+        ds = rec.data["dataset"]
+        by_model: dict[str, list[int]] = {}
+        for run in rec.data["runs"]:
+            if run["status"] == STATUS_COMPLETE:
+                by_model.setdefault(run["model"], []).append(run["seed"])
+            else:
+                incomplete[(ds, f"{run['model']} seed {run['seed']}")] = run["reason"]
+        for model, seeds in by_model.items():
+            changed = sorted({k for r in rec.runs if r.model == model
+                              for k in changed_settings(r, params, rec.scale, rec.device)})
+            shown = ", ".join(f"`{k}`" for k in changed[:4]) + (f" and {len(changed) - 4} more" if len(changed) > 4
+                                                                  else "") or "nothing"
+            lines.append(f"| {DATASET_LABEL.get(ds, ds)} | {ROW_LABEL.get(model, model)} | "
+                         f"{', '.join(map(str, sorted(seeds)))} | [{Path(rec.path).name}]"
+                         f"(../../benchmarks/records/full/{Path(rec.path).name}) | {rec.commit[:12]} | {rec.machine} | "
+                         f"{shown} |")
+    return lines, incomplete
+
+
+def _not_recorded(records: Sequence[PlateauRecord], params: Any) -> list[str]:
+    """Per dataset of the params, the models (and seeds) at ``full`` with no complete recorded run."""
+    have = {(r.dataset, r.model, r.seed) for rec in records for r in rec.runs}
+    out = []
+    for ds in params.dataset_ids:
+        missing = []
+        for m in params.model_ids:
+            want = params.seeds_of(MODELS[m].group, ds, "full")
+            lacking = [k for k in want if (ds, m, k) not in have]
+            if lacking:
+                missing.append(ROW_LABEL.get(m, m) + ("" if len(lacking) == len(want)
+                                                      else f" (seeds {', '.join(map(str, lacking))})"))
+        if missing:
+            out.append(f"- {DATASET_LABEL.get(ds, ds)}: {', '.join(missing)}")
+    return out
+
+
+def _page(records: Sequence[PlateauRecord], params: Any, parts: Any) -> str:
+    prov, incomplete = _provenance_rows(records, params)
+    missing = _not_recorded(records, params)
+    out = ["# Reproduction report at `scale: full`, from the recorded runs", "",
+           "Generated by the `report` stage (`pipeline/report.py`) from the records of runs trained at `scale: full` "
+           "in `benchmarks/records/full/` (`benchmarks/record_full.py`, one dataset and part at a time; each record holds "
+           "every run's test scores per frame, its floor and the settings it was trained under). Every table below is "
+           "built by the code that builds the default's report, from the recorded files.", "",
+           "## Where each row comes from", "", *prov, ""]
+    if incomplete:
+        out += ["Runs a record has as incomplete (no number is recorded for them):", ""]
+        out += [f"- {DATASET_LABEL.get(ds, ds)}, {what}: {why}" for (ds, what), why in incomplete.items()] + [""]
+    out += ["## Not recorded yet", ""]
+    out += (["At `scale: full` the params train these runs, which no record holds yet: their rows are absent "
+             "from the tables below and the claims on them are not decidable here.", "", *missing, ""]
+            if missing else ["Every dataset, model and seed of the params at `scale: full` is recorded.", ""])
+    out += _seeds_overview(parts.results, parts.scales) + _headline_section(parts) + _floor_section(parts)
+    out += _tables_section(parts)
+    return "\n".join(out).rstrip() + "\n"
+
+
+def build_full_report(records: Sequence[PlateauRecord], params: Any, out_dir: Path,
+                      paper: Optional[PaperNumbers] = None) -> list[str]:
+    """The report at ``full`` under ``out_dir`` (``index.md``, ``metrics.json``, ``tables/``),
+    replaced whole, from the version-2 ``records``. Table III and its exact-count claims are the
+    default report's (the networks, not their training): left out here. Without a version-2
+    record the page says so. Returns the written paths relative to ``out_dir``."""
+    full = [r for r in records if r.data is not None]
+    _check(full)
+    out_dir = Path(out_dir)
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=out_dir.parent, prefix=".full-") as stage:
+        tmp = Path(stage)
+        tree, page = tmp / "tree", tmp / "page"
+        page.mkdir()
+        seeds: dict[str, dict[str, list[int]]] = {}
+        for rec in full:
+            assert rec.data is not None
+            for model, seed in write_tree(rec.data, tree):
+                seeds.setdefault(rec.data["dataset"], {}).setdefault(model, []).append(seed)
+        datasets = [ds for ds in params.dataset_ids if ds in seeds] + sorted(set(seeds) - set(params.dataset_ids))
+        models = [m for m in params.model_ids if any(m in s for s in seeds.values())]
+        models += sorted({m for s in seeds.values() for m in s} - set(models))
+        if not datasets:
+            io.write_text(page / "index.md", "# Reproduction report at `scale: full`\n\nNo run at `scale: full` is "
+                          "recorded yet (`benchmarks/records/full/`, written by `benchmarks/record_full.py`).\n")
+            written = ["index.md"]
+        else:
+            inp: ReportInputs = read_inputs(tree, datasets, models, {ds: {m: sorted(k) for m, k in s.items()}
+                                                                   for ds, s in seeds.items()},
+                                            paper or load_paper_numbers())
+            parts, paths = write_tables(inp, page / "tables", "full")
+            io.write_json(page / "metrics.json", parts.headline)
+            io.write_text(page / "index.md", _page(full, params, parts))
+            written = [Path(p).relative_to(page).as_posix() for p in paths] + ["metrics.json", "index.md"]
+        if out_dir.exists():
+            shutil.rmtree(out_dir)
+        os.replace(page, out_dir)
+    log.info("wrote the report at full (%d records) under %s", len(full), out_dir)
+    return written
+
+
+def _check(records: Sequence[PlateauRecord]) -> None:
+    """Two records of one dataset holding the same run are refused (which would the report show?)."""
+    seen: dict[tuple[str, str, int], str] = {}
+    for rec in records:
+        for r in rec.runs:
+            key = (r.dataset, r.model, r.seed)
+            if key in seen:
+                raise ReportInputError(f"{rec.path}: {r.model} seed {r.seed} on {r.dataset} is also in {seen[key]}")
+            seen[key] = rec.path

@@ -1,0 +1,200 @@
+"""The records of runs at ``scale: full`` (version 2 of core/plateau_record.py, written by
+benchmarks/record_full.py) and the report built from them (report/full.py): a record keeps every
+file of a run the report reads, the report built from a record equals the report built from the
+run tree it was recorded from, incomplete runs and unrecorded datasets are named, and bad records
+are one line."""
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+from compact_perception.core.config import load_params, parse_params
+from compact_perception.core.errors import ReportInputError
+from compact_perception.core.plateau_record import (STATUS_INCOMPLETE, changed_keys, record_problem, record_runs,
+                                                    write_tree)
+from compact_perception.report.full import build_full_report, load_records
+from compact_perception.report.index import read_inputs, write_tables
+from compact_perception.report.paper import load_paper_numbers
+from compact_perception.report.plateau import load_record
+from report_fixture import COMPACT, build_tree
+
+ROOT = Path(__file__).resolve().parents[1]
+SCRIPT = ROOT / "benchmarks" / "record_full.py"
+
+
+def _full_params(**top):
+    data = yaml.safe_load((ROOT / "params.yaml").read_text())
+    data.update({"scale": "full", **top})
+    return parse_params(data)
+
+
+def _tree(root: Path, ds: str = "B") -> None:
+    """A finished run tree of the compact models on ``ds`` at three seeds, with its floor."""
+    build_tree(root, (ds,), n_frames=40, models=COMPACT, seeds=(0, 1, 2))
+
+
+def _record(root: Path, ds: str = "B", models=COMPACT, seeds=(0, 1, 2)) -> dict:
+    return record_runs(root, _full_params(), ds, {m: list(seeds) for m in models},
+                       {"commit": "abc123", "machine": "a CPU (family 6 model 167), 2 cores", "command": "x"},
+                       run_command=lambda m, k: f"record {m} {k}")
+
+
+def test_a_record_holds_every_file_the_report_reads_and_writes_them_back(tmp_path: Path) -> None:
+    _tree(tmp_path / "tree")
+    rec = _record(tmp_path / "tree")
+    assert record_problem(json.loads(json.dumps(rec))) is None
+    assert rec["version"] == 2 and rec["dataset"] == "B" and len(rec["runs"]) == 12
+    run = next(r for r in rec["runs"] if r["model"] == "compact_15l_mgn" and r["seed"] == 1)
+    assert run["command"] == "record compact_15l_mgn 1" and run["status"] == "complete"
+    assert set(run["curves"]) >= {"w_de", "w_ss", "w_ls", "w_bevp", "val_score"}     # Fig. 8's weights
+    assert run["per_frame"]["columns"][0] == "frame_id" and len(run["per_frame"]["rows"]) == 40
+    write_tree(rec, tmp_path / "back")
+    for rel in ("results/B/compact_15l_mgn/seed1/metrics.json", "runs/B/compact_15l_mgn/seed1/summary.json",
+                "results/B/floor_pixel/metrics.json", "data/cache/B/meta.json"):
+        assert json.loads((tmp_path / "back" / rel).read_text()) == json.loads((tmp_path / "tree" / rel).read_text())
+    for rel in ("data/eval/B/compact_1l/seed2/per_frame.csv", "data/eval/B/floor_global/per_frame.csv"):
+        import pandas as pd
+        pd.testing.assert_frame_equal(pd.read_csv(tmp_path / "back" / rel), pd.read_csv(tmp_path / "tree" / rel))
+
+
+def test_the_report_from_a_record_equals_the_report_from_its_tree(tmp_path: Path) -> None:
+    """Table II and the claims of the record's tree are those of the run tree it was recorded from."""
+    _tree(tmp_path / "tree")
+    path = tmp_path / "records" / "B_compact.json"
+    path.parent.mkdir()
+    path.write_text(json.dumps(_record(tmp_path / "tree")))
+    params = _full_params()
+    build_full_report(load_records(tmp_path / "records"), params, tmp_path / "full")
+    seeds = {"B": {m: [0, 1, 2] for m in COMPACT}}
+    inp = read_inputs(tmp_path / "tree", ["B"], list(COMPACT), seeds, load_paper_numbers())
+    write_tables(inp, tmp_path / "direct", "full")
+    for name in ("table2.md", "claims.csv", "extra_metrics.csv"):
+        assert (tmp_path / "full/tables" / name).read_text() == (tmp_path / "direct" / name).read_text(), name
+    page = (tmp_path / "full/index.md").read_text()
+    assert "| Set B | 15L+MGN (Alg. 1) | 0, 1, 2 | [B_compact.json]" in page
+    assert "[B_compact.json](../../benchmarks/records/full/B_compact.json) | abc123 |" in page
+    # what no record holds is listed, never silently absent
+    not_recorded = page.split("## Not recorded yet", 1)[1].split("##", 1)[0]
+    assert "Set A:" in not_recorded and "nuScenes" in not_recorded and "Set B:" in not_recorded
+    assert "GradNorm" in not_recorded.split("Set B:", 1)[1].split("\n", 1)[0]
+    assert json.loads((tmp_path / "full/metrics.json").read_text())["claims"]
+
+
+def test_an_incomplete_run_is_recorded_without_numbers_and_named(tmp_path: Path) -> None:
+    _tree(tmp_path / "tree")
+    shutil.rmtree(tmp_path / "tree/results/B/compact_1l/seed2")
+    (tmp_path / "tree/runs/B/compact_1l/seed2/summary.json").unlink()
+    (tmp_path / "tree/runs/B/compact_1l/seed2/last.pt").write_bytes(b"x")
+    rec = _record(tmp_path / "tree")
+    run = next(r for r in rec["runs"] if r["model"] == "compact_1l" and r["seed"] == 2)
+    assert run["status"] == STATUS_INCOMPLETE and "stopped before it finished" in run["reason"]
+    assert not {"metrics", "per_frame", "floor_margin", "epochs_run"} & set(run)
+    (tmp_path / "records").mkdir()
+    (tmp_path / "records/B.json").write_text(json.dumps(rec))
+    build_full_report(load_records(tmp_path / "records"), _full_params(), tmp_path / "full")
+    page = (tmp_path / "full/index.md").read_text()
+    assert "Set B, compact_1l seed 2: stopped before it finished" in page
+    assert "1L (seeds 2)" in page.split("## Not recorded yet", 1)[1].split("##", 1)[0]
+
+
+def test_two_records_of_one_run_or_of_different_floors_are_refused(tmp_path: Path) -> None:
+    _tree(tmp_path / "tree")
+    rec = _record(tmp_path / "tree")
+    (tmp_path / "records").mkdir()
+    (tmp_path / "records/B_a.json").write_text(json.dumps(rec))
+    (tmp_path / "records/B_b.json").write_text(json.dumps(rec))
+    with pytest.raises(ReportInputError, match=r"B_b.json: compact_1l seed 0 on B is also in .*B_a.json"):
+        build_full_report(load_records(tmp_path / "records"), _full_params(), tmp_path / "full")
+    other = json.loads(json.dumps(rec))
+    other["runs"] = [r for r in other["runs"] if r["model"] == "compact_1l"]
+    rec["runs"] = [r for r in rec["runs"] if r["model"] != "compact_1l"]
+    other["floor"]["floor_pixel"]["metrics"]["tm"] = {"mean": 9.0, "var": 0.0}
+    (tmp_path / "records/B_a.json").write_text(json.dumps(rec))
+    (tmp_path / "records/B_b.json").write_text(json.dumps(other))
+    with pytest.raises(ReportInputError, match="the records' floors differ"):
+        build_full_report(load_records(tmp_path / "records"), _full_params(), tmp_path / "full")
+
+
+@pytest.mark.parametrize("change, problem", [
+    (lambda r: r.update(machine="x" * 100_000), "machine: expected one line of at most 500 characters"),
+    (lambda r: r.update(commit="a\nb"), "commit: expected one line"),
+    (lambda r: r.update(device="tpu"), "device: expected one of ['cpu', 'cuda']"),
+    (lambda r: r["runs"][0]["per_frame"]["rows"].append(["f", 1.0]), "runs[0].per_frame: rows[40]: expected a frame id"),
+    (lambda r: r["runs"][0]["curves"].update(w_de=[[0, float("nan")]]), "runs[0].curves: w_de: expected [[step, finite"),
+    (lambda r: r["runs"][0].update(status="done"), "runs[0].status: expected 'complete' or 'incomplete'"),
+    (lambda r: r["runs"][1].update(seed=0, model=r["runs"][0]["model"]), "runs[1]: compact_1l seed 0 recorded twice"),
+    (lambda r: r["runs"][0].update(dataset="A"), "runs[0].dataset: expected the record's 'B'"),
+])
+def test_a_bad_record_is_one_line_naming_the_field(tmp_path: Path, change, problem) -> None:
+    _tree(tmp_path / "tree")
+    rec = _record(tmp_path / "tree")
+    change(rec)
+    path = tmp_path / "B.json"
+    path.write_text(json.dumps(rec))
+    with pytest.raises(ReportInputError) as exc:
+        load_record(path)
+    assert str(exc.value).startswith(f"{path}: {problem}")
+    assert len(str(exc.value)) < 700 and "\n" not in str(exc.value)
+
+
+def test_keys_that_cannot_change_a_recorded_run_are_not_flagged() -> None:
+    """A CPU record made before `train.deterministic`, `train.tf32` and `evaluate.batch_size`
+    existed was flagged against all three, though none changes that run: a CUDA-only key never
+    changes a CPU run, and a key added since at the value the code had before it changes nothing."""
+    now = {"train.deterministic": True, "train.tf32": False, "evaluate.batch_size": 1, "train.lr": 0.1}
+    assert changed_keys({"train.lr": 0.1}, now, "cpu") == []
+    assert changed_keys({"train.lr": 0.1}, {**now, "evaluate.batch_size": 4}, "cpu") == ["evaluate.batch_size"]
+    assert changed_keys({"train.lr": 0.1}, now, "cuda") == ["train.deterministic", "train.tf32"]
+    assert changed_keys({"train.lr": 0.2}, now, "cpu") == ["train.lr"]
+
+
+def test_the_committed_records_read_and_name_nothing_that_cannot_change_them() -> None:
+    params = load_params(ROOT / "params.yaml")
+    records = [load_record(ROOT / "benchmarks/records/full_plateau.json"), *load_records(ROOT / "benchmarks/records/full")]
+    assert len(records) >= 2, "no record of scale: full is committed"
+    from compact_perception.report.plateau import evidence
+    for rec in records:
+        ev = evidence(rec, params)
+        assert all(not ({"evaluate.batch_size", "train.deterministic", "train.tf32"} & set(keys))
+                   for keys in ev.changed.values()), rec.path
+
+
+def _script(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, str(SCRIPT), *args], capture_output=True, text=True, cwd=ROOT)
+
+
+def test_the_script_records_a_copy_and_checks_a_rerun_against_a_record(tmp_path: Path) -> None:
+    copy = tmp_path / "copy"
+    _tree(copy)
+    data = yaml.safe_load((ROOT / "params.yaml").read_text())
+    data.update({"scale": "full", "dataset_ids": ["B"], "model_ids": list(COMPACT)})
+    (copy / "params.yaml").write_text(yaml.safe_dump(data, sort_keys=False))
+    out = tmp_path / "B_compact.json"
+    done = _script("--dataset", "B", "--part", "compact", "--root", str(copy), "--machine", "m", "--out", str(out))
+    assert done.returncode == 0, done.stderr
+    rec = json.loads(out.read_text())
+    assert rec["machine"] == "m" and rec["scale"] == "full" and len(rec["runs"]) == 12
+    assert rec["runs"][0]["command"].startswith("python benchmarks/record_full.py --dataset B --commit ")
+    assert "--check benchmarks/records/full/B_compact.json" in rec["runs"][0]["command"]
+    again = tmp_path / "again.json"
+    done = _script("--dataset", "B", "--root", str(copy), "--models", "compact_1l", "--out", str(again),
+                   "--check", str(out))
+    assert done.returncode == 0 and "every recorded number equals" in done.stderr, done.stderr
+    per_frame = copy / "data/eval/B/compact_1l/seed0/per_frame.csv"
+    per_frame.write_text(per_frame.read_text().replace("0.", "0.9", 1))
+    done = _script("--dataset", "B", "--root", str(copy), "--models", "compact_1l", "--out", str(again),
+                   "--check", str(out))
+    assert done.returncode == 1 and "compact_1l seed 0: per_frame differs" in done.stderr
+    assert "Traceback" not in done.stderr
+    for bad, says in ((["--seeds", "-1"], "--seeds: expected integers of at least 0"),
+                      (["--part", "a/b"], "--part: expected a short name"),
+                      (["--models", "nope"], "--models: ['nope']")):
+        done = _script("--dataset", "B", "--root", str(copy), "--out", str(tmp_path / "x.json"), *bad)
+        assert done.returncode == 1 and done.stderr.strip().splitlines()[-1].startswith(f"error: {says}"), done.stderr
+        assert not (tmp_path / "x.json").exists()
