@@ -49,6 +49,9 @@ from compact_perception.learning.training.epoch import epoch_means, train_step  
 from compact_perception.learning.training.state import RunSpec  # noqa: E402
 from compact_perception.learning.training.train import _setup  # noqa: E402
 
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from flags import MAX_BATCH, MAX_WORKERS, Parser, count, frame_size  # noqa: E402
+
 #: The compact 15L network with each study arm whose loss weighting no model's own recipe uses.
 ARMS: tuple[str, ...] = ("gradnorm", "uw", "dwa", "pcgrad", "cagrad", "single_ss")
 
@@ -98,17 +101,32 @@ def samples_per_s(run, batch: dict, steps: int, n: int, step=train_step) -> floa
     return n * run.spec.per_rank_batch / (time.perf_counter() - t0)
 
 
-def captured_samples_per_s(run, batch: dict, steps: int, n: int) -> tuple[float | None, str]:
+def captured_samples_per_s(run, batch: dict, n: int) -> tuple[float | None, str]:
     """Samples per second of ``n`` ordinary steps replayed as a CUDA graph (``train.cuda_graphs``:
-    learning/training/capture.py), after the capture and its check against the eager step; None
-    and the reason where the step is not captured."""
+    learning/training/capture.py), as a run replays them: after a warm-up epoch (its first step eager,
+    the capture, its warm-up and its checked first replay at the second), in the next epoch, whose
+    second step captures again (new epoch sums), untimed; then ``n`` replays timed. None and the
+    reason where the step is not captured or any timed step was not a replay (never an eager rate
+    under the captured column)."""
     step = run.captured  # train._setup's, per train.cuda_graphs
     if step is None:
         return None, capture_blocker(run) or "train.cuda_graphs: off"
-    step(run, batch, 1, steps)  # captured, its first replay checked
+    steps = n + 3  # first, capture, n timed, last
+    for k in range(steps):  # the warm-up epoch
+        step(run, batch, k, steps)
+    epoch_means(run)
+    step(run, batch, 0, steps)
+    step(run, batch, 1, steps)  # captured again: this epoch's sums
+    replays = step.replays
+    rate = samples_per_s(run, batch, steps, n, step) if not step.failed else None
+    timed = step.replays - replays
+    step(run, batch, steps - 1, steps)
+    epoch_means(run)
     if step.failed:
         return None, step.failed
-    return samples_per_s(run, batch, steps, n, step), ""
+    if timed != n:
+        return None, f"{timed} of {n} timed steps were replays"
+    return rate, ""
 
 
 def make_params(device: torch.device, precision: str, batch: int):
@@ -119,24 +137,45 @@ def make_params(device: torch.device, precision: str, batch: int):
     return params.model_copy(update={"train": train})
 
 
-def _side_worker(job: tuple) -> float:
-    """One of k processes sharing the device: build, warm up, wait for the others, time."""
+def _side_worker(job: tuple) -> tuple[float, str]:
+    """One of k processes sharing the device: build, warm up, wait for the others, time. Returns its
+    samples/s and how its step ran: "captured" (every timed step a replay) or "eager (why)"."""
     precision, batch_size, model, arm, cache, out, n, barrier = job
     device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
     params = make_params(device, precision, batch_size)
     run = build(params, model, arm, device, Path(cache), Path(out))
-    loader = make_loader(Path(cache), "train", catalog.MODELS[model].lidar_channels, params.train.batch_size,
-                         shuffle=False, labelled=getattr(run.model, "labelled_maps", ()))
-    batch = next(iter(loader))
-    step = run.captured or train_step  # the captured step where it can be (the stage's own choice)
-    for _ in range(3):
-        step(run, batch, 1, 3)
+    batch = first_batch(Path(cache), model, params.train.batch_size, run, device)
+    step, steps = run.captured, n + 3
+    if step is not None:  # a warm-up epoch (the capture and its check), then this epoch's capture
+        for k in range(steps):
+            step(run, batch, k, steps)
+        epoch_means(run)
+        step(run, batch, 0, steps)
+        step(run, batch, 1, steps)
+    else:
+        for _ in range(3):
+            train_step(run, batch, 1, 3)
     barrier.wait()
-    return samples_per_s(run, batch, 3, n, step)
+    replays = step.replays if step is not None else 0
+    rate = samples_per_s(run, batch, steps, n, step or train_step)
+    if step is None:
+        return rate, f"eager ({capture_blocker(run) or 'train.cuda_graphs: off'})"
+    if step.failed or step.replays - replays != n:
+        return rate, f"eager ({step.failed or 'not every timed step a replay'})"
+    return rate, "captured"
 
 
-def side_by_side(params, model: str, arm: str | None, cache: Path, tmp: Path, k: int, n: int) -> list[float]:
-    """Samples/s of each of ``k`` processes training ``model`` at once on one device."""
+def first_batch(cache: Path, model: str, batch_size: int, run, device: torch.device) -> dict:
+    """The first training batch, loaded as the training stage loads it (pinned on a GPU, the
+    labelled-pixel lists with it)."""
+    loader = make_loader(cache, "train", catalog.MODELS[model].lidar_channels, batch_size, shuffle=False,
+                         labelled=getattr(run.model, "labelled_maps", ()), pin_memory=device.type == "cuda")
+    return next(iter(loader))
+
+
+def side_by_side(params, model: str, arm: str | None, cache: Path, tmp: Path, k: int,
+                 n: int) -> list[tuple[float, str]]:
+    """Samples/s of each of ``k`` processes training ``model`` at once on one device, and how its step ran."""
     import multiprocessing as mp
 
     ctx = mp.get_context("spawn")
@@ -148,20 +187,22 @@ def side_by_side(params, model: str, arm: str | None, cache: Path, tmp: Path, k:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--size", type=int, default=32, help="image size of the synthetic cache (px)")
-    ap.add_argument("--batch", type=int, default=6)
-    ap.add_argument("--steps", type=int, default=3, help="steps of the counted epoch (>= 3)")
+    ap = Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--size", type=frame_size(), default=32, help="image size of the synthetic cache (px)")
+    ap.add_argument("--batch", type=count(1, MAX_BATCH), default=6)
+    ap.add_argument("--steps", type=count(3), default=3, help="steps of the counted epoch (>= 3)")
     ap.add_argument("--precision", default="fp32", choices=("fp32", "bf16", "fp16"))
     ap.add_argument("--only", nargs="*", default=None, help="model or model/arm ids")
     ap.add_argument("--sites", action="store_true", help="where each sync of an ordinary step happens")
-    ap.add_argument("--time-steps", type=int, default=10, help="timed steps per run on CUDA")
-    ap.add_argument("--side-by-side", type=int, nargs="*", default=None,
+    ap.add_argument("--time-steps", type=count(1), default=10, help="timed steps per run on CUDA")
+    ap.add_argument("--side-by-side", type=count(1, MAX_WORKERS), nargs="*", default=None,
                     help="k processes training the first run at once, samples/s each and together "
                          "(default on CUDA: 4 12; on a CPU only when given)")
     args = ap.parse_args()
-    if args.steps < 3:
-        ap.error("--steps must be at least 3 (a first, an ordinary and a last step)")
+    known = {m for m, _ in runs()} | {f"{m}/{a}" for m, a in runs() if a}
+    unknown = [x for x in args.only or () if x not in known]
+    if unknown:
+        ap.error(f"--only: expected model or model/arm ids of {sorted(known)} (got {unknown[0]!r})")
     device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
     params = make_params(device, args.precision, args.batch)
     where = torch.cuda.get_device_name() if device.type == "cuda" else f"CPU, {torch.get_num_threads()} threads"
@@ -178,17 +219,16 @@ def main() -> None:
             if args.only and key not in args.only and model not in args.only:
                 continue
             run = build(params, model, arm, device, cache, Path(tmp) / key.replace("/", "_"))
-            loader = make_loader(cache, "train", catalog.MODELS[model].lidar_channels, args.batch, shuffle=False,
-                                 labelled=getattr(run.model, "labelled_maps", ()))  # as train._open builds it
-            batch = next(iter(loader))
+            batch = first_batch(cache, model, args.batch, run, device)  # as train._open builds it
             counts = census_of(run, batch, args.steps)
             mid = max(counts[1:-1], key=lambda c: c.syncs)
             line = (f"{key:<28s} {counts[1].ops:6d} "
                     f"{counts[0].syncs:>12d} / {mid.syncs:>3d} / {counts[-1].syncs:>3d}")
             if device.type == "cuda":
                 line += f"  {samples_per_s(run, batch, args.steps, args.time_steps):9.1f}"
-                rate, why = captured_samples_per_s(run, batch, args.steps, args.time_steps)
-                line += f" / {rate:9.1f}" if rate is not None else f" / not captured: {why}"
+                rate, why = captured_samples_per_s(run, batch, args.time_steps)
+                line += f" / {rate:9.1f} (captured: every timed step a replay)" if rate is not None else \
+                    f" / not captured: {why}"
             print(line, flush=True)
             if args.sites:
                 for site, n in mid.sites.most_common():
@@ -197,10 +237,12 @@ def main() -> None:
         first = next(((m, a) for m, a in runs() if not args.only or m in args.only
                       or f"{m}/{a}" in args.only), None)
         for k in side if first else []:
-            each = side_by_side(params, first[0], first[1], cache, Path(tmp), k, args.time_steps)
+            out = side_by_side(params, first[0], first[1], cache, Path(tmp), k, args.time_steps)
+            each, hows = [r for r, _ in out], sorted({h for _, h in out})
             name = f"{first[0]}/{first[1]}" if first[1] else first[0]
             print(f"{k} x {name} side by side: {min(each):.1f}-{max(each):.1f} samples/s each, "
-                  f"{sum(each):.1f} together" + ("" if device.type == "cuda" else " (CPU figures)"), flush=True)
+                  f"{sum(each):.1f} together" + ("" if device.type == "cuda" else " (CPU figures)")
+                  + f"; step: {', '.join(hows)}", flush=True)
     if device.type != "cuda":
         print("GPU samples/s: not measured here (no GPU; a CPU's step time says nothing about a GPU's)")
 

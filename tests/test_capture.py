@@ -4,6 +4,7 @@ a first replay that differs from the eager step falls back with one line and the
 what cannot be captured says why."""
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 
@@ -216,3 +217,212 @@ def test_cuda_graphs_is_a_declared_setting(params_dict):
     with pytest.raises(ParamsError, match=r"train\.cuda_graphs: .*auto.*off"):
         parse_params(params_dict)
     assert "train.cuda_graphs" in NEUTRAL_KEYS  # a CPU never captures; a GPU only a step equal to eager
+
+
+# ----------------------------------------------------------------------------- issue 55: the GPU's semantics
+def _small(tmp_path, params_dict, model="compact_15l", frames=8):
+    """A run of ``model`` and its batches (four steps an epoch: the first and last eager)."""
+    params = _params(params_dict)
+    cache = make_cache(tmp_path / "cache", size=16, counts=(frames, 1, 1))
+    return params, cache, _run(params, model, None, cache, tmp_path / "run")
+
+
+def test_a_replay_as_far_from_eager_as_eager_is_from_itself_engages(tmp_path, params_dict, monkeypatch, caplog):
+    """Issue 55 item 1: a device whose eager step differs from itself in its last bits (a stand-in
+    for the bilinear upsampling's atomic CUDA backward: every run of the step moves each parameter by
+    its own relative 1e-7, about an ulp) still captures, and a replay far outside that still falls back."""
+    from compact_perception.learning.training import capture as capture_mod
+
+    noise = torch.Generator().manual_seed(1)  # not the run's RNG, which the check puts back
+    real = capture_mod.step_on_device
+
+    def atomic(run, *a, **k):
+        out = real(run, *a, **k)
+        with torch.no_grad():
+            for p in run.model.parameters():
+                p.mul_(1 + torch.randn(p.shape, generator=noise) * 1e-7)
+        return out
+
+    monkeypatch.setattr(capture_mod, "step_on_device", atomic)
+    params, cache, (run, batches) = _small(tmp_path, params_dict)
+    step = CapturedStep(run, Uncaptured())
+    with caplog.at_level(logging.WARNING, logger="compact_perception.learning.training.capture"):
+        for k, batch in enumerate(batches):
+            step(run, batch, k, len(batches))
+    assert step.failed is None and step.replays == len(batches) - 2 and not caplog.records
+
+    class Nudged(Uncaptured):
+        def replay(self) -> None:
+            super().replay()
+            with torch.no_grad():
+                p = next(run2.model.parameters())
+                p[(0,) * p.dim()] += 1e-3
+
+    run2, _ = _run(params, "compact_15l", None, cache, tmp_path / "nudged")
+    step2 = CapturedStep(run2, Nudged())
+    for k, batch in enumerate(batches):
+        step2(run2, batch, k, len(batches))
+    assert step2.failed and "two eager runs of it differ by" in step2.failed and step2.replays == 0
+
+
+def test_replay_difference_is_bytes_where_eager_is_deterministic():
+    from compact_perception.learning.training.capture import replay_difference
+
+    a = [torch.tensor([1.0, 2.0]), torch.tensor(3)]
+    up = lambda x, n: x if n == 0 else up(torch.nextafter(x, torch.tensor(9.0)), n - 1)  # noqa: E731  n ulps up
+    near = [torch.tensor([1.0, float(up(torch.tensor(2.0), 3))]), torch.tensor(3)]
+    assert replay_difference(a, a, a) is None
+    assert "eager step's bytes" in replay_difference(near, a, a)  # the two eager runs agree: bytes
+    spread = [torch.tensor([1.0, float(up(torch.tensor(2.0), 1))]), torch.tensor(3)]
+    assert replay_difference(near, a, spread) is None               # within 4x the eager runs' spread
+    assert "differ by" in replay_difference([torch.tensor([1.0, 2.1]), torch.tensor(3)], a, spread)
+    assert "agree on" in replay_difference([torch.tensor([1.0, 2.0]), torch.tensor(4)], a, spread)
+
+
+class FakeCuda:
+    """torch.cuda's streams, graphs and caching allocator as torch 2.13 runs them, for a CPU: a
+    capture that an error invalidates makes ``capture_end`` raise "operation failed due to a previous
+    error during capture" before it gives the allocator its pool back (a build without the allocator
+    fix), after which ``empty_cache`` asserts; work queued during a capture does run (the CPU)."""
+
+    class Stream:
+        def __init__(self, device=None, name="side") -> None:
+            self.name = name
+
+        def wait_stream(self, other) -> None:
+            pass
+
+    def __init__(self, monkeypatch) -> None:
+        self.default = FakeCuda.Stream(name="default")
+        self.current = self.default
+        self.capturing = None       # the stream a capture is under way on
+        self.invalidated = False    # an error happened inside the capture
+        self.pools: list = []       # pools the allocator routes to
+        self.calls: list = []       # (what, stream, capturing) of every step body
+        fake = self
+
+        class Graph:
+            def __init__(self) -> None:
+                self.ended = False
+
+            def capture_begin(self, pool=None, capture_error_mode="global", **_) -> None:
+                assert fake.capturing is None, "a capture is already under way"
+                fake.capturing, fake.invalidated = fake.current, False
+                fake.pools.append(self.pool())
+
+            def capture_end(self) -> None:
+                assert fake.current is fake.capturing, "Capture must end on the same stream it began on"
+                fake.capturing = None
+                if fake.invalidated:
+                    raise RuntimeError("CUDA error: operation failed due to a previous error during capture")
+                fake.pools.remove(self.pool())
+                self.ended = True
+
+            def pool(self):
+                return (0, id(self))
+
+            def replay(self) -> None:
+                assert self.ended
+
+            def reset(self) -> None:
+                pass
+
+        def end_pool(device, pool) -> None:
+            if pool not in fake.pools:
+                raise RuntimeError("endAllocatePool: not currently recording to mempool_id")
+            fake.pools.remove(pool)
+
+        def empty_cache() -> None:
+            assert not fake.pools, "captures_underway.empty() INTERNAL ASSERT FAILED"
+
+        @contextlib.contextmanager
+        def stream(s):
+            prev, fake.current = fake.current, s
+            try:
+                yield
+            finally:
+                fake.current = prev
+
+        def set_stream(s) -> None:
+            fake.current = s
+
+        for name, value in {"Stream": FakeCuda.Stream, "CUDAGraph": Graph, "empty_cache": empty_cache,
+                            "synchronize": lambda device=None: None, "stream": stream, "set_stream": set_stream,
+                            "current_stream": lambda device=None: fake.current, "current_device": lambda: 0}.items():
+            monkeypatch.setattr(torch.cuda, name, value)
+        monkeypatch.setattr(torch._C, "_cuda_endAllocateToPool", end_pool, raising=False)
+        monkeypatch.setattr(torch._C, "_host_emptyCache", lambda: None, raising=False)
+        monkeypatch.setattr(torch.cuda.graph, "default_capture_stream", None)
+
+    def failing_step(self, monkeypatch, fail: bool):
+        """The step's device work: recorded, and (``fail``) refused inside a capture."""
+        from compact_perception.learning.training import capture as capture_mod
+
+        real = self.real = getattr(self, "real", capture_mod.step_on_device)
+
+        def step(run, *a, **k):
+            self.calls.append((self.current, self.capturing is not None))
+            if fail and self.capturing is not None:
+                self.invalidated = True
+                raise RuntimeError("CUDA error: operation not permitted when stream is capturing\nmore")
+            return real(run, *a, **k)
+
+        monkeypatch.setattr(capture_mod, "step_on_device", step)
+
+
+def test_a_failed_capture_leaves_the_process_as_it_was(tmp_path, params_dict, monkeypatch, caplog):
+    """Issue 55 item 5: an error inside the capture (stand-in: the step refuses to run while a capture
+    is under way) is the cause the log line gives, not capture_end's "previous error"; the current
+    stream is the default one again, the allocator takes no more allocations into the graph's pool
+    (``empty_cache`` works), and the next run in the process captures."""
+    from compact_perception.learning.training.capture import CudaGraph
+
+    cuda = FakeCuda(monkeypatch)
+    cuda.failing_step(monkeypatch, fail=True)
+    params, cache, (run, batches) = _small(tmp_path, params_dict)
+    step = CapturedStep(run, CudaGraph(torch.device("cpu")), verify=False)
+    with caplog.at_level(logging.WARNING, logger="compact_perception.learning.training.capture"):
+        step(run, batches[0], 0, len(batches))
+        step(run, batches[1], 1, len(batches))
+    lines = [r.getMessage() for r in caplog.records]
+    assert len(lines) == 1 and "operation not permitted when stream is capturing" in lines[0], lines
+    assert "previous error" not in lines[0] and step.failed
+    assert cuda.current is cuda.default and cuda.capturing is None and not cuda.pools
+    torch.cuda.empty_cache()
+
+    cuda.failing_step(monkeypatch, fail=False)  # the worker's next run
+    run2, _ = _run(params, "compact_15l", None, cache, tmp_path / "next")
+    step2 = CapturedStep(run2, CudaGraph(torch.device("cpu")), verify=False)
+    step2(run2, batches[0], 0, len(batches))
+    step2(run2, batches[1], 1, len(batches))
+    assert step2.failed is None and step2.replays == 1 and cuda.current is cuda.default
+
+
+def test_the_first_capture_is_warmed_up_on_its_stream(tmp_path, params_dict, monkeypatch):
+    """Issue 55 item 8: before a run's first capture the step runs eagerly on the stream it is then
+    captured on (PyTorch's whole-network example), and the run's state is put back after it."""
+    from compact_perception.learning.training.capture import CudaGraph, _state_tensors
+
+    cuda = FakeCuda(monkeypatch)
+    cuda.failing_step(monkeypatch, fail=False)
+    _, _, (run, batches) = _small(tmp_path, params_dict)
+    graph = CudaGraph(torch.device("cpu"))
+    step = CapturedStep(run, graph, verify=False)
+    step(run, batches[0], 0, len(batches))
+    cuda.calls.clear()
+    warm = {}
+
+    real_capture = graph.capture
+
+    def capture(fn):
+        warm["state"] = [t.detach().clone() for t in _state_tensors(run)]
+        real_capture(fn)
+
+    graph.capture = capture
+    before = [t.detach().clone() for t in _state_tensors(run)]
+    step(run, batches[1], 1, len(batches))
+    (warm_stream, warm_capturing), (cap_stream, cap_capturing) = cuda.calls[:2]
+    assert warm_stream is cap_stream is graph.stream and warm_stream is not cuda.default
+    assert not warm_capturing and cap_capturing
+    assert all(torch.equal(a, b) for a, b in zip(warm["state"], before))  # the warm-up left no trace
+    assert cuda.current is cuda.default

@@ -288,3 +288,84 @@ def test_the_loader_finds_the_labelled_pixels_a_model_asks_for(tmp_path):
     moved = to_device(batch, "cpu", 23)
     assert isinstance(moved["labelled"]["ls"], Labelled)
     assert torch.equal(moved["labelled"]["ls"].views[0], torch.nonzero(batch["ls"].reshape(-1) != 255).reshape(-1))
+
+
+def test_a_pinning_loader_pins_the_labelled_pixel_lists(tmp_path, monkeypatch):
+    """Issue 55 item 4: a DataLoader with ``pin_memory=True`` (as training builds it on a GPU) returns
+    PolarNet's and GradNorm SegNet's labelled-pixel lists pinned, like the batch's tensors. The CPU
+    build cannot pin: a stand-in accelerator and ``Tensor.pin_memory`` (a pinned copy, marked)."""
+    from compact_perception.data.loader import Labelled, make_loader
+
+    pinned: set[int] = set()
+
+    def pin(self, *_a, **_k):
+        out = self.clone()
+        pinned.add(id(out))
+        return out
+
+    monkeypatch.setattr(torch.Tensor, "pin_memory", pin)
+    monkeypatch.setattr(torch.accelerator, "is_available", lambda: True)
+    monkeypatch.setattr(torch.accelerator, "current_accelerator", lambda *a, **k: torch.device("cpu"))
+    cache = make_cache(tmp_path / "cache", size=16, counts=(2, 1, 1))
+    loader = make_loader(cache, "train", 15, 2, shuffle=False, pin_memory=True, labelled=("ss", "ls"))
+    batch = next(iter(loader))
+    assert id(batch["rgb"]) in pinned  # the loader pins (the stand-in works)
+    for key in ("ss", "ls"):
+        lab = batch["labelled"][key]
+        assert isinstance(lab, Labelled) and lab.views
+        assert all(id(v) in pinned for v in lab.views), f"{key}'s labelled pixels are not pinned"
+
+
+def _bench_census():
+    import importlib
+    import sys as _sys
+
+    root = Path(__file__).resolve().parents[1]
+    _sys.path.insert(0, str(root / "benchmarks"))
+    try:
+        return importlib.import_module("bench_census")
+    finally:
+        _sys.path.remove(str(root / "benchmarks"))
+
+
+def test_bench_census_times_real_replays_and_says_so(tmp_path, params_dict):
+    """Issue 55 item 3: the census's captured rate is timed over replays after a warm-up epoch (a
+    stand-in for the graph: the uncaptured buffer path), not eager steps of a fresh run; a step that
+    falls back is reported as not captured, with no rate."""
+    from compact_perception.learning.training.capture import CapturedStep, Uncaptured
+
+    bc = _bench_census()
+    cache = make_cache(tmp_path / "cache", size=16, counts=(2, 1, 1))
+    params = bc.make_params(torch.device("cpu"), "fp32", 2)
+    run = bc.build(params, "compact_15l", None, torch.device("cpu"), cache, tmp_path / "r")
+    batch = bc.first_batch(cache, "compact_15l", 2, run, torch.device("cpu"))
+    run.captured = CapturedStep(run, Uncaptured())
+    rate, why = bc.captured_samples_per_s(run, batch, 3)
+    assert rate is not None and rate > 0 and why == "" and run.captured.failed is None
+    assert run.captured.replays == 4 + 1 + 3  # the warm-up epoch's 4, the recapture's checked one, 3 timed
+
+    class Nudged(Uncaptured):
+        def replay(self) -> None:
+            super().replay()
+            with torch.no_grad():
+                p = next(run2.model.parameters())
+                p[(0,) * p.dim()] += 1e-3
+
+    run2 = bc.build(params, "compact_15l", None, torch.device("cpu"), cache, tmp_path / "r2")
+    run2.captured = CapturedStep(run2, Nudged())
+    rate, why = bc.captured_samples_per_s(run2, batch, 3)
+    assert rate is None and "eager step's bytes" in why
+
+
+@pytest.mark.parametrize("flags", [["--size", "0"], ["--batch", "0"], ["--side-by-side", "0"], ["--size", "100000"],
+                                   ["--only", "no_such_model"]])
+def test_bench_census_refuses_bad_flags_in_one_line(flags):
+    """Issue 56 item 7: each bad flag is one line ``error: --flag: ...`` and exit 1, before any work."""
+    import subprocess
+    import sys as _sys
+
+    root = Path(__file__).resolve().parents[1]
+    proc = subprocess.run([_sys.executable, str(root / "benchmarks" / "bench_census.py"), *flags], cwd=root,
+                          capture_output=True, text=True, timeout=120)
+    lines = (proc.stdout + proc.stderr).strip().splitlines()
+    assert proc.returncode == 1 and len(lines) == 1 and lines[0].startswith(f"error: {flags[0]}: "), lines

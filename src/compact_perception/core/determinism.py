@@ -23,7 +23,7 @@ outside what the project promises.
 from __future__ import annotations
 
 import os
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     import torch
@@ -92,8 +92,29 @@ def set_threads(n: int) -> None:
 CUBLAS_DETERMINISTIC = (":4096:8", ":16:8")
 
 
+def apply_policy(device: "torch.device", train: Any) -> None:
+    """The one determinism and precision policy of every stage that runs a network (training,
+    evaluation, the benchmark stage, the benchmarks' scripts), before the stage's first kernel:
+    ``train.tf32`` and cuDNN's settings everywhere (they act on a GPU only; without them a GPU runs
+    float32 convolutions in TF32, PyTorch's default for cuDNN), and on a CUDA device
+    :func:`set_determinism` whole. On a CPU ``torch.use_deterministic_algorithms`` is left as it
+    is outside training: every CPU kernel used is deterministic already, and the flag's filling of
+    uninitialised memory would cost a CPU forward about 9% (Table III's CPU timings and the
+    evaluate stage would move) for no change of any output."""
+    import torch
+
+    if device.type == "cuda":
+        set_determinism(device, bool(train.deterministic), bool(train.tf32))
+        return
+    torch.backends.cuda.matmul.allow_tf32 = bool(train.tf32)
+    torch.backends.cudnn.allow_tf32 = bool(train.tf32)
+    torch.backends.cudnn.deterministic = bool(train.deterministic)
+    torch.backends.cudnn.benchmark = not train.deterministic
+
+
 def set_determinism(device: "torch.device", deterministic: bool, tf32: bool) -> None:
-    """The determinism policy of a training run (``train.deterministic``, ``train.tf32``; docs/gpu.md).
+    """The determinism policy of every stage that runs a network (``train.deterministic``,
+    ``train.tf32``; docs/gpu.md; :func:`apply_policy`).
 
     - ``tf32`` false (the default): float32 matrix products and convolutions on a GPU run in full
       float32, not TF32 (PyTorch's default for cuDNN on Ampere and later); no effect on a CPU.

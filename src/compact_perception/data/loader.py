@@ -167,6 +167,11 @@ class Labelled:
     def to(self, device: torch.device, non_blocking: bool = False) -> "Labelled":
         return Labelled(tuple(v.to(device, non_blocking=non_blocking) for v in self.views), self.classes)
 
+    def pin_memory(self) -> "Labelled":
+        """The views in page-locked memory (a DataLoader with ``pin_memory=True`` calls it on a batch's
+        custom types), so their ``non_blocking`` copy to a GPU does not stall the stream."""
+        return Labelled(tuple(v.pin_memory() for v in self.views), self.classes)
+
 
 def labelled_pixels(index: torch.Tensor) -> Labelled:
     """:class:`Labelled` of a uint8 class-index map on the host, (B,V,S,S) or (B,S,S) (one view)."""
