@@ -3,7 +3,8 @@
 First the trivial predictors (compact_perception.evaluation.floor, SPEC 8: fitted on the train split) into
 results/<ds>/floor_*/; then every run of compact_perception.learning.plan (each model at its seeds, the
 study's arms) from its best checkpoint, frame by frame, in ``train.parallel_runs`` worker
-processes, into results/<ds>/<model>/seed<k>/metrics.json (with its margin over the floor) and
+processes (or as cluster jobs: compact_perception.execution, docs/cluster.md), into
+results/<ds>/<model>/seed<k>/metrics.json (with its margin over the floor) and
 data/eval/<ds>/<model>/seed<k>/. Before anything is written, every file of the cache and every
 run's ``best.pt`` is checked against the SHA-256 recorded when it was written (meta.json's
 ``sha256``, summary.json's ``best_sha256``): a copy damaged in a DVC remote or on a disk is named in
@@ -29,7 +30,10 @@ from compact_perception.core.layout import evaluation_folders, floor_paths
 from compact_perception.evaluation.evaluate import check_best, evaluate_floors, evaluate_run, read_best
 from compact_perception.evaluation.floor import TRIVIAL
 from compact_perception.learning.plan import PlannedRun, dataset_runs
-from compact_perception.learning.training.parallel import Job, JobError, run_jobs, stage_processes
+from compact_perception.execution.executor import chosen_executor, run_jobs
+from compact_perception.execution.jobs import Job, JobError
+from compact_perception.execution.settings import SettingsError
+from compact_perception.learning.training.parallel import stage_processes
 
 from ._common import stage, start, worker_logging
 
@@ -50,7 +54,8 @@ def main(argv: list[str] | None = None) -> None:
     params = start(args.params, workers=("train.parallel_runs",), device=True)
     cache = Path("data/cache") / args.dataset
     try:  # bad input (a truncated cache, no checkpoint, a read-only results/): one line naming the file,
-        runs = dataset_runs(params, args.dataset)  # exit 1, before any write
+        executor = chosen_executor()               # exit 1, before any write
+        runs = dataset_runs(params, args.dataset)
         for split in ("train", "test"):
             read_split(cache, split)
         if not verify_cache(cache):  # every file as it was written (a copy damaged in a DVC remote)
@@ -65,8 +70,8 @@ def main(argv: list[str] | None = None) -> None:
         jobs = [Job(r.name, r, cost=MODELS[r.model].epoch_cost) for r in runs]
         processes, on_gpu = stage_processes(params.train)
         run_jobs(partial(evaluate_one, params, floor=floor), jobs, processes, desc=f"evaluate {args.dataset}",
-                 gpu=on_gpu)
-    except (JobError, CacheError, RunError) as err:
+                 gpu=on_gpu, executor=executor)
+    except (JobError, CacheError, RunError, SettingsError) as err:
         sys.exit(f"error: {err}")
     except OSError as err:  # no checkpoint (its own message), a full disk, a read-only folder
         sys.exit(f"error: {os_error_line(err, Path('results') / args.dataset)}")

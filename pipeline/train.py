@@ -1,7 +1,9 @@
 """DVC stage train@<dataset>: every run of one dataset (compact_perception.learning.plan: each model of
 ``model_ids`` at its seeds, and the study's arms where the dataset is a study dataset), trained
-side by side in ``train.parallel_runs`` worker processes into runs/<dataset>/. A run already
-complete for the same code, params and data is skipped; a killed one resumes.
+side by side in ``train.parallel_runs`` worker processes into runs/<dataset>/, or as SLURM jobs
+(compact_perception.execution: ``COMPACT_PERCEPTION_EXECUTOR``, ``cluster.yaml``; docs/cluster.md).
+A run already complete for the same code, params and data is found here, before any job is
+handed out, and costs none; a killed or requeued one resumes.
 
     python -m pipeline.train --dataset A                                  # the stage
     python -m pipeline.train --dataset A --model compact_15l_mgn --seed 0  # one run
@@ -13,6 +15,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import re
 import sys
 from functools import partial
@@ -24,8 +27,11 @@ from compact_perception.core.config import Params, ParamsError
 from compact_perception.core.errors import RunError, os_error_line
 from compact_perception.core.params_errors import shown
 from compact_perception.learning.plan import PlannedRun, dataset_runs, recipe_of
-from compact_perception.learning.training.parallel import Job, JobError, run_jobs, stage_processes
-from compact_perception.learning.training.train import run_seed, train_run
+from compact_perception.execution.executor import chosen_executor, run_jobs
+from compact_perception.execution.jobs import Job, JobError
+from compact_perception.execution.settings import SettingsError
+from compact_perception.learning.training.parallel import stage_processes
+from compact_perception.learning.training.train import finished_runs, run_seed, train_run
 from compact_perception.learning.weighting import weighting_settings
 
 from ._common import stage, start, worker_logging
@@ -34,10 +40,27 @@ log = logging.getLogger("pipeline.train")
 
 
 def train_one(params: Params, run: PlannedRun, *, progress: bool) -> dict:
-    """One planned run, in a worker process or in this one (``progress``: a per-step bar, for a run
-    alone): its summary's stopping facts."""
+    """One planned run, in a worker process, a cluster job or this one (``progress``: a per-step
+    bar, for a run alone): its summary's stopping facts."""
     worker_logging()
-    summary = train_run(params, run, progress=progress)
+    try:
+        return _facts(train_run(params, run, progress=progress))
+    except MemoryError as err:  # torch.OutOfMemoryError is also a RuntimeError: this run's, in one line
+        raise RunError(out_of_memory_line(run, err)) from None
+    except RuntimeError as err:
+        if isinstance(err, RunError) or "out of memory" not in str(err):
+            raise
+        raise RunError(out_of_memory_line(run, err)) from None
+
+
+def out_of_memory_line(run: PlannedRun, err: BaseException) -> str:
+    """One line for a run that ran out of memory: the run, the allocator's first line, what to set."""
+    first = next((ln.strip() for ln in str(err).splitlines() if ln.strip()), type(err).__name__)[:160]
+    return (f"{run.name}: out of memory ({first}); set train.parallel_runs to a lower count (fewer runs "
+            "share the device) or train.batch_size lower; a restart resumes the run from its last.pt")
+
+
+def _facts(summary: dict) -> dict:
     return {k: summary.get(k) for k in ("epochs_run", "best_epoch", "stop_reason")}
 
 
@@ -115,15 +138,20 @@ def main(argv: list[str] | None = None) -> None:
         taken = other_run(params, runs[0]) if args.out is not None else None
         if taken:
             raise ParamsError(taken)
+        executor = chosen_executor()
+        finished = finished_runs(params, runs, int(os.environ.get("WORLD_SIZE", "1")))
+        todo = [r for r in runs if r.name not in finished]
         alone = len(runs) == 1
         processes, on_gpu = stage_processes(params.train)
-        done = run_jobs(partial(train_one, params, progress=alone), [Job(r.name, r, cost=r.cost) for r in runs],
-                        1 if alone else processes, desc=f"train {args.dataset}", gpu=on_gpu)
-    except (JobError, RunError, CacheError, ParamsError) as err:
+        trained = run_jobs(partial(train_one, params, progress=alone), [Job(r.name, r, cost=r.cost) for r in todo],
+                           1 if alone else processes, desc=f"train {args.dataset}", gpu=on_gpu,
+                           executor=executor) if todo else []
+        done = {**{n: _facts(s) for n, s in finished.items()}, **dict(zip((r.name for r in todo), trained))}
+    except (JobError, RunError, CacheError, ParamsError, SettingsError) as err:
         sys.exit(f"error: {err}")
     except OSError as err:  # a full disk, a read-only runs/ (a run's own writes say RunError)
         sys.exit(f"error: {os_error_line(err, Path('runs') / args.dataset)}")
-    for r, facts in zip(runs, done):
+    for r, facts in ((r, done[r.name]) for r in runs if r.name in done):
         log.info("%s: %s epochs (best %s), stopped by %s", r.name, facts["epochs_run"], facts["best_epoch"],
                  facts["stop_reason"])
 

@@ -9,19 +9,22 @@ its own layer and those below it, and inside a layer, its own tier and those bel
 
 0. ``core`` -- params (``scale`` resolved there), catalog, registries, io, errors, the facts the
    report shares with evaluation: imports nothing of the project above it.
-1. ``data`` -- the generate and preprocess stages and the loader:
+1. ``execution`` -- where a stage's jobs run (the local pool, submitit): it knows jobs, not runs,
+   so it imports nothing of ``learning`` or ``evaluation`` (nor does any file of it enter a run's
+   digest).
+2. ``data`` -- the generate and preprocess stages and the loader:
    (a) ``data.record``, the raw record contract: the sources write it, preprocessing reads it;
    (b) the sources' own code and the sensors' maths: ``world``, ``carla``, ``nuscenes``,
    ``authors``, ``geometry``, ``dvs``, ``lidar``, the stages' figures, ``qualitative``, ``loader``;
    (c) ``sources`` (the registry) and ``preprocess`` (which looks the source up): a source never
    imports its consumer.
-2. ``learning`` -- the train stage: (a) ``models``, ``weighting`` (kept apart: a network does not
+3. ``learning`` -- the train stage: (a) ``models``, ``weighting`` (kept apart: a network does not
    know its loss weighting, nor the weighting the network), ``losses``, ``metrics``, ``schedule``,
    ``plan``, ``onnx_export``; (b) ``training``, which runs them.
-3. ``evaluation`` -- the evaluate and benchmark stages: ``evaluate``, ``floor``, ``efficiency``,
+4. ``evaluation`` -- the evaluate and benchmark stages: ``evaluate``, ``floor``, ``efficiency``,
    ``timing``.
-4. ``report`` and ``stats`` (the report's statistics) -- they read what the stages below wrote.
-5. ``pipeline`` -- the stage entry points (outside ``src``; may import everything).
+5. ``report`` and ``stats`` (the report's statistics) -- they read what the stages below wrote.
+6. ``pipeline`` -- the stage entry points (outside ``src``; may import everything).
 
 The package's own ``__init__`` and each layer's ``__init__`` import nothing of the project.
 
@@ -50,11 +53,12 @@ ROOT = Path(__file__).resolve().parents[1]
 PKG = ROOT / "src" / "compact_perception"
 TOP = "compact_perception"
 
-CORE, DATA, LEARNING, EVALUATION, REPORT = 0, 1, 2, 3, 4
+CORE, EXECUTION, DATA, LEARNING, EVALUATION, REPORT = 0, 1, 2, 3, 4, 5
 #: Where each part of the package sits: (layer, tier inside the layer). A module's place is that of
 #: the longest entry its dotted name (below the package) starts with.
 LAYERS: dict[str, tuple[int, int]] = {
     "": (CORE, 0), "core": (CORE, 0),
+    "execution": (EXECUTION, 0),
     "data": (DATA, 0), "data.record": (DATA, 0),
     **{f"data.{name}": (DATA, 1) for name in (
         "world", "carla", "nuscenes", "authors", "geometry", "dvs", "lidar", "figures_generate",
@@ -68,7 +72,7 @@ LAYERS: dict[str, tuple[int, int]] = {
     **{f"evaluation.{name}": (EVALUATION, 0) for name in ("evaluate", "floor", "efficiency", "timing")},
     "report": (REPORT, 0), "stats": (REPORT, 0),
 }
-LAYER_NAMES = {CORE: "core", DATA: "data", LEARNING: "learning", EVALUATION: "evaluation", REPORT: "report"}
+LAYER_NAMES = {CORE: "core", EXECUTION: "execution", DATA: "data", LEARNING: "learning", EVALUATION: "evaluation", REPORT: "report"}
 
 #: Parts that must not import each other, whatever their places: the trainable parts stay
 #: separate (a network does not know its loss weighting, nor the weighting the network), and
@@ -147,8 +151,18 @@ def _violations() -> list[str]:
 def test_the_top_level_reads_as_the_pipeline():
     """The package's folders are its layers, in the pipeline's order; no loose module at the top."""
     top = sorted(p.name for p in PKG.iterdir() if p.suffix == ".py" or (p.is_dir() and (p / "__init__.py").exists()))
-    assert top == ["__init__.py", "core", "data", "evaluation", "learning", "report", "stats"]
+    assert top == ["__init__.py", "core", "data", "evaluation", "execution", "learning", "report", "stats"]
     assert sorted({key.split(".")[0] for key in LAYERS if key}) == top[1:]
+
+
+def test_the_executor_layer_knows_jobs_not_runs():
+    """``execution/`` imports nothing of ``learning/`` or ``evaluation/`` (nor anything above them):
+    a stage hands it its planned runs and worker function, whole."""
+    modules = _modules()
+    reached = sorted(f"{m} imports {name}" for m, path in modules.items() if _part(m) == "execution"
+                     for _, name in _imported(m, path) if _known(name, modules) and _layer(name)[0] > EXECUTION)
+    assert not reached, reached
+    assert any(_part(m) == "execution" for m in modules)
 
 
 def test_layers_import_downward_only():
@@ -178,6 +192,10 @@ def test_checker_resolves_relative_and_lazy_imports(tmp_path):
     ("compact_perception.data.carla.recording", "compact_perception.data.preprocess", True),  # a source, its consumer
     ("compact_perception.data.carla.recording", "compact_perception.data.record", False),
     ("compact_perception.data.preprocess", "compact_perception.data.sources", False),
+    ("compact_perception.execution.pool", "compact_perception.learning.training.train", True),
+    ("compact_perception.execution.executor", "compact_perception.evaluation.evaluate", True),
+    ("compact_perception.learning.training.parallel", "compact_perception.execution.pool", False),
+    ("compact_perception.execution.settings", "compact_perception.core.params_file", False),
 ])
 def test_layer_order(importer, imported, upward):
     assert (_layer(imported) > _layer(importer)) is upward

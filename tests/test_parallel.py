@@ -1,4 +1,4 @@
-"""Runs side by side (training/parallel.py): the pool returns results in job order, starts the
+"""Runs side by side (execution/pool.py, training/parallel.py): the pool returns results in job order, starts the
 longest jobs first, stops at the first failing job with its one-line error, hands the stage's
 params and planned runs to its spawned workers whole, and a run trained in a worker process after
 another run has the same bytes as the same run trained alone."""
@@ -48,9 +48,9 @@ def test_the_first_failure_is_the_stage_error(caplog):
 
 def test_longest_first_keeps_the_order_of_equal_costs(monkeypatch):
     seen: list[str] = []
-    from compact_perception.learning.training import parallel
+    from compact_perception.execution import pool
 
-    monkeypatch.setattr(parallel, "_call", lambda fn, job: (seen.append(job.name) or (job.name, None, None)))
+    monkeypatch.setattr(pool, "_call", lambda fn, job: (seen.append(job.name) or (job.name, None, None)))
     run_jobs(_square, [Job("a", 1, 1.0), Job("b", 1, 3.0), Job("c", 1, 1.0), Job("d", 1, 3.0)], 1, "t")
     assert seen == ["b", "d", "a", "c"]
 
@@ -66,7 +66,7 @@ def test_a_stage_starts_its_costliest_runs_first(tmp_path, monkeypatch):
     params.write_text(yaml.safe_dump(cap_epochs(repo_params_dict(), 2), sort_keys=False))
     seen: list[Job] = []
 
-    def capture(fn, jobs, processes, desc, gpu=False):
+    def capture(fn, jobs, processes, desc, gpu=False, executor=None):
         seen.extend(jobs)
         return [{"epochs_run": 2, "best_epoch": 1, "stop_reason": "max_epochs"}] * len(jobs)
 

@@ -167,9 +167,40 @@ def test_compact_run_is_exported_as_onnx_matching_pytorch(reference, tmp_path_fa
     assert summary["onnx"]["max_abs_diff"] < 1e-4
 
 
-def test_source_fingerprint_covers_the_whole_package_and_the_stage_modules(tmp_path, monkeypatch):
-    """The training shortcut's code digest reads every .py of compact_perception (its subpackages
-    too, not only its own) and of pipeline/: editing any of them in a copy of the tree changes it."""
+#: What can change a run's bytes, and so enters its digest (learning/training/provenance.py): every
+#: module a training run can execute (the run's module and what it imports, lazily too) and the
+#: stage package's start-up (its numeric pins). Not the executor layer, the stage's planning, the
+#: evaluation or the report: editing those restarts no run.
+FINGERPRINTED = {
+    *(f"compact_perception/core/{m}.py" for m in (
+        "__init__", "cache", "catalog", "classes", "config", "depth", "depth_metrics", "determinism", "errors",
+        "io", "layout", "machine", "params_base", "params_errors", "params_file", "params_schema", "recipe",
+        "registry", "scores")),
+    "compact_perception/__init__.py", "compact_perception/data/__init__.py", "compact_perception/data/loader.py",
+    *(f"compact_perception/learning/{m}.py" for m in (
+        "__init__", "losses", "metrics", "onnx_export", "plan", "schedule")),
+    *(f"compact_perception/learning/models/{m}.py" for m in (
+        "__init__", "base", "blocks", "chen", "compact", "polarnet", "segnet")),
+    *(f"compact_perception/learning/training/{m}.py" for m in (
+        "__init__", "capture", "checkpoint", "distributed", "epoch", "precision", "provenance", "state", "train")),
+    *(f"compact_perception/learning/weighting/{m}.py" for m in (
+        "__init__", "base", "cagrad", "dwa", "gradients", "gradnorm", "mgn", "pcgrad", "single", "static", "uw")),
+    "pipeline/__init__.py",
+}
+
+
+def test_the_fingerprint_covers_what_can_change_a_runs_bytes():
+    """The files in a run's digest are those a training run can execute, listed above: no module of
+    the executor layer, of the stage's planning (pipeline/train.py), of evaluation or of the report."""
+    files = set(provenance.fingerprinted_files())
+    assert files == FINGERPRINTED, f"added: {sorted(files - FINGERPRINTED)}, gone: {sorted(FINGERPRINTED - files)}"
+    assert not [f for f in files if f.startswith(("compact_perception/execution/", "compact_perception/report/",
+                                                  "compact_perception/evaluation/", "compact_perception/stats/"))]
+    assert "pipeline/train.py" not in files and "compact_perception/learning/training/parallel.py" not in files
+
+
+def _tree_copy(tmp_path, monkeypatch):
+    """A copy of the package and pipeline/ that the fingerprint reads instead of the tree."""
     import shutil
 
     repo = Path(__file__).resolve().parents[1]
@@ -178,22 +209,61 @@ def test_source_fingerprint_covers_the_whole_package_and_the_stage_modules(tmp_p
     package = tmp_path / "src" / "compact_perception"
     shutil.copytree(provenance.PACKAGE_ROOT, package, ignore=skip)
     shutil.copytree(repo / "pipeline", tmp_path / "pipeline", ignore=skip)
+    return package
 
-    def fingerprint() -> str:
-        provenance.source_fingerprint.cache_clear()
-        return provenance.source_fingerprint()
 
+def _fingerprint() -> str:
+    provenance.source_fingerprint.cache_clear()
+    return provenance.source_fingerprint()
+
+
+def test_source_fingerprint_moves_with_the_code_a_run_executes(tmp_path, monkeypatch):
+    """Editing a module a run executes (the params schema, a loss weighting, the metrics, the
+    stage package's pins) in a copy of the tree changes the code digest; editing the stage's
+    planning, the pool or the report does not."""
+    package = _tree_copy(tmp_path, monkeypatch)
     try:
-        real = fingerprint()
+        real = _fingerprint()
         monkeypatch.setattr(provenance, "PACKAGE_ROOT", package)
-        assert fingerprint() == real  # the copy is read like the tree itself
-        for edited in (package / "core" / "config.py", package / "learning" / "weighting" / "uw.py",
-                       package / "learning" / "metrics.py", tmp_path / "pipeline" / "train.py"):
+        assert _fingerprint() == real  # the copy is read like the tree itself
+        for edited, moves in ((package / "core" / "config.py", True), (package / "learning" / "weighting" / "uw.py", True),
+                              (package / "learning" / "metrics.py", True), (tmp_path / "pipeline" / "__init__.py", True),
+                              (tmp_path / "pipeline" / "train.py", False), (package / "execution" / "pool.py", False),
+                              (package / "learning" / "training" / "parallel.py", False),
+                              (package / "report" / "index.py", False)):
             text = edited.read_text()
             edited.write_text(text + "\n# edited\n")
-            assert fingerprint() != real, edited.relative_to(tmp_path)
+            assert (_fingerprint() != real) is moves, edited.relative_to(tmp_path)
             edited.write_text(text)
-            assert fingerprint() == real
+            assert _fingerprint() == real
+    finally:
+        monkeypatch.undo()
+        provenance.source_fingerprint.cache_clear()
+
+
+def test_adding_a_module_to_the_executor_layer_leaves_every_digest_unchanged(tmp_path, monkeypatch, params_dict):
+    """A new executor backend (a module of execution/, imported by the seam) restarts no run: the run
+    digest of every planned run is the same before and after."""
+    from compact_perception.learning.plan import dataset_runs
+    from compact_perception.learning.training.train import run_digest
+
+    package = _tree_copy(tmp_path, monkeypatch)
+    params = parse_params(params_dict)
+    runs = dataset_runs(params, "A")
+
+    def digests() -> list[str]:
+        provenance.source_fingerprint.cache_clear()
+        return [run_digest(params, r, 1, "data", 1) for r in runs]
+
+    try:
+        monkeypatch.setattr(provenance, "PACKAGE_ROOT", package)
+        before = digests()
+        (package / "execution" / "ray_backend.py").write_text("from ..core.machine import usable_cores\n")
+        seam = package / "execution" / "executor.py"
+        seam.write_text(seam.read_text() + "\n\ndef _ray():\n    from .ray_backend import usable_cores\n")
+        assert digests() == before
+        (package / "learning" / "losses.py").write_text((package / "learning" / "losses.py").read_text() + "\n#\n")
+        assert digests() != before   # the checker sees a change that matters
     finally:
         monkeypatch.undo()
         provenance.source_fingerprint.cache_clear()

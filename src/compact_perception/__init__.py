@@ -8,6 +8,10 @@ Package map: the folders read as the pipeline, each importing only those above i
                   params load), the registries of datasets, models, tasks and scores (``catalog``),
                   class tables, the dataset cache, file layout, atomic I/O, errors, the determinism
                   pins, the depth convention, the floor's rule, the plateau record (see its docstring)
+- ``execution``   where a stage's jobs run: the local process pool (the default, its workers spread
+                  over the visible GPUs) or SLURM through submitit, chosen by a setting no result
+                  depends on (``cluster.yaml``, ``COMPACT_PERCEPTION_EXECUTOR``); nothing of it
+                  enters a run's digest
 - ``data``        the generate and preprocess stages and the loader: the raw record contract
                   (``record``), the data sources (``sources``: the embedded ``world``, the
                   ``authors``' release, ``carla`` recordings; ``nuscenes`` has its own stages),

@@ -35,6 +35,7 @@ import json
 import logging
 import random
 import time
+import zipfile
 import zlib
 from pathlib import Path
 from typing import Optional
@@ -65,8 +66,8 @@ from .state import RunSpec, RunState
 
 log = logging.getLogger(__name__)
 
-__all__ = ["train_run", "run_seed", "run_digest", "cache_fingerprint", "seed_everything", "make_optimizer",
-           "selection_score"]
+__all__ = ["train_run", "run_seed", "run_digest", "cache_fingerprint", "finished_runs", "seed_everything",
+           "make_optimizer", "selection_score"]
 
 
 def run_seed(params: Params, dataset_id: str, seed: int) -> int:
@@ -125,6 +126,52 @@ def run_digest(params: Params, run: PlannedRun, rng_seed: int, cache_hash: str, 
         "world_size": world_size,
     }, sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+#: A run's summary.json is a few kB: a larger file is not one (read no further).
+MAX_SUMMARY_BYTES = 1 << 20
+
+
+def _whole_archive(path: Path) -> bool:
+    """Whether ``path`` is a whole checkpoint archive (its zip directory, read from its end, lists
+    a pickle): a truncated ``last.pt`` is left to the run's job, which names it."""
+    try:
+        with zipfile.ZipFile(path) as archive:
+            return any(name.endswith("data.pkl") for name in archive.namelist())
+    except (OSError, zipfile.BadZipFile):
+        return False
+
+
+def finished_runs(params: Params, runs: list[PlannedRun], world_size: int = 1) -> dict[str, dict]:
+    """``{run name: summary}`` of the runs already complete for this code, params and data: their
+    ``summary.json`` (written last) carries the digest this run would have and ``last.pt`` is a whole
+    archive.
+    Decided where the stage plans its runs, before any job is handed to an executor, so a finished
+    run costs no job (no worker, no cluster job); each cache is hashed once, and not at all when no
+    run has a summary. A run this cannot decide (a cache or summary that does not read) is left to
+    its job, which says what is wrong (:func:`_resume` decides the same way inside the job)."""
+    candidates = [r for r in runs if r.paths.summary.is_file() and _whole_archive(r.paths.last)]
+    hashes: dict[Path, Optional[str]] = {}
+    done: dict[str, dict] = {}
+    for run in candidates:
+        cache = run.paths.cache_dir
+        if cache not in hashes:
+            try:
+                hashes[cache] = cache_fingerprint(cache)
+            except (OSError, RuntimeError):  # RunError: no train/val files
+                hashes[cache] = None
+        try:
+            with run.paths.summary.open("rb") as fh:
+                summary = json.loads(fh.read(MAX_SUMMARY_BYTES + 1)[:MAX_SUMMARY_BYTES])
+        except (OSError, ValueError, RecursionError):
+            continue
+        if hashes[cache] is None or not isinstance(summary, dict):
+            continue
+        digest = run_digest(params, run, run_seed(params, run.dataset, run.seed), hashes[cache], world_size)
+        if summary.get("digest") == digest:
+            log.info("%s: already complete for this code, params and data", run.paths.run_dir)
+            done[run.name] = summary
+    return done
 
 
 def make_optimizer(recipe, parameters) -> torch.optim.Optimizer:
@@ -249,6 +296,8 @@ def _setup(spec: RunSpec) -> RunState:
         model = to_channels_last(model)
     weighting = build_weighting(recipe, model.tasks, model, plateau_patience=tp.plateau_patience,
                                 plateau_factor=tp.plateau_factor)
+    if spec.dist.enabled:  # DWA's epoch means, MGN's L_i(0): agreed over the ranks before they set weights
+        weighting.ranks = spec.dist
     optimizer = make_optimizer(recipe, model.parameters())
     plateau = Plateau(tp.plateau_patience, tp.plateau_factor, recipe.lr_min, recipe.plateau_rule,
                       tp.plateau_threshold)
@@ -314,6 +363,8 @@ def _end_epoch(run: RunState, epoch: int, train_m: dict, val_m: dict) -> tuple[d
     score = selection_score(val_m)
     plateau_improved, run.lr = run.plateau.step(score, run.lr)
     run.weighting.on_epoch_end(plateau_improved)
+    if run.spec.dist.enabled:  # weights it set (DWA's) come from sums over the ranks: already agreed
+        run.synced_w = run.weighting.w
     run.stopped_early = run.stopper.step(score)
     improved = score < run.best_score  # the best checkpoint: any drop (both plateau rules)
     if improved:
