@@ -138,8 +138,15 @@ def build_run(params, model_id: str, device: torch.device, cache: Path, out: Pat
     return run
 
 
-def one_batch(cache: Path, model_id: str, batch: int) -> dict:
-    loader = make_loader(cache, "train", catalog.MODELS[model_id].lidar_channels, batch, shuffle=False)
+def one_batch(cache: Path, model_id: str, batch: int, device: torch.device | None = None, run=None) -> dict:
+    """The first training batch of ``model_id``, loaded as the training stage loads it: pinned when
+    the device (``device``, else ``run``'s, else the CPU) is a GPU, so its copies to the GPU do not
+    block, with the labelled-pixel lists ``run``'s network asks for."""
+    if device is None:
+        device = run.spec.device if run is not None else torch.device("cpu")
+    labelled = getattr(run.model, "labelled_maps", ()) if run is not None else ()
+    loader = make_loader(cache, "train", catalog.MODELS[model_id].lidar_channels, batch, shuffle=False,
+                         labelled=labelled, pin_memory=device.type == "cuda")
     return next(iter(loader))
 
 
@@ -188,7 +195,7 @@ def check_train_steps(rows, device, cache, args) -> None:
                 with tempfile.TemporaryDirectory() as tmp:
                     run = build_run(params, model_id, device, cache, Path(tmp))
                     _expect(run.precision == precision, f"resolved precision {run.precision}")
-                    return steps_of(run, one_batch(cache, model_id, args.batch), args.steps)
+                    return steps_of(run, one_batch(cache, model_id, args.batch, run=run), args.steps)
 
             run_check(rows, name, device, precision, fn)
 
@@ -207,7 +214,7 @@ def check_captured_steps(rows, device, cache, args) -> None:
             params = params_for(device, precision, args.batch)
 
             def fn(model_id=model_id, params=params):
-                batch, n = one_batch(cache, model_id, args.batch), 4
+                batch, n = one_batch(cache, model_id, args.batch, device), 4
                 with tempfile.TemporaryDirectory() as tmp:
                     nets = {}
                     for how in ("eager", "eager again", "captured"):  # one after the other: each draws its own dropout masks
@@ -349,7 +356,7 @@ def ddp_worker(args) -> None:
     for name, (model_id, arm) in WEIGHTING_RUNS.items():
         with tempfile.TemporaryDirectory() as tmp:
             run = build_run(params, model_id, device, Path(args.cache), Path(tmp), group, arm)
-            steps_of(run, one_batch(Path(args.cache), model_id, args.batch), 2)
+            steps_of(run, one_batch(Path(args.cache), model_id, args.batch, run=run), 2)
         done.append(name)
     mean = ddp.average_scalars({"x": 2.0}, group)["x"]
     ddp.barrier(group)

@@ -50,3 +50,46 @@ def test_gpu_check_refuses_cuda_without_a_gpu_in_one_line():
                           text=True, timeout=120)
     assert proc.returncode != 0
     assert proc.stderr.strip().startswith("error:") and len(proc.stderr.strip().splitlines()) == 1
+
+
+def _gpu_check():
+    import importlib
+
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    try:
+        return importlib.import_module("gpu_check")
+    finally:
+        sys.path.remove(str(ROOT / "benchmarks"))
+
+
+def test_one_batch_is_loaded_as_training_loads_it(tmp_path, monkeypatch):
+    """Issue 55 item 8: gpu-check's batch is pinned on a GPU, as the training stage's loader pins
+    it, with the labelled-pixel lists the run's network asks for; on a CPU nothing is pinned. The
+    CPU build cannot pin: a stand-in accelerator and ``Tensor.pin_memory`` (a pinned copy, marked)."""
+    from types import SimpleNamespace
+
+    import torch
+
+    from synthetic import make_cache
+
+    gc = _gpu_check()
+    pinned: set[int] = set()
+
+    def pin(self, *_a, **_k):
+        out = self.clone()
+        pinned.add(id(out))
+        return out
+
+    monkeypatch.setattr(torch.Tensor, "pin_memory", pin)
+    monkeypatch.setattr(torch.accelerator, "is_available", lambda: True)
+    monkeypatch.setattr(torch.accelerator, "current_accelerator", lambda *a, **k: torch.device("cpu"))
+    cache = make_cache(tmp_path / "cache", size=16, counts=(2, 1, 1))
+    on_cpu = gc.one_batch(cache, "compact_15l", 2)
+    assert id(on_cpu["rgb"]) not in pinned and "labelled" not in on_cpu
+    on_gpu = gc.one_batch(cache, "compact_15l", 2, torch.device("cuda"))
+    assert id(on_gpu["rgb"]) in pinned
+    run = SimpleNamespace(spec=SimpleNamespace(device=torch.device("cuda")),
+                          model=SimpleNamespace(labelled_maps=("ls",)))  # PolarNet's run on a GPU
+    polar = gc.one_batch(cache, "polarnet", 2, run=run)
+    assert id(polar["rgb"]) in pinned and set(polar["labelled"]) == {"ls"}
+    assert all(id(v) in pinned for v in polar["labelled"]["ls"].views)

@@ -6,6 +6,8 @@
   anything else, through the real ``train_step``, for every loss weighting;
 - gradients are averaged before the GradScaler unscales them, so an inf on one rank skips the
   step on every rank, and the loss weights computed from that step are dropped with it;
+- two ranks with different batches (a two-rank group in one process, a thread per rank) start
+  every epoch with the same DWA weights and share MGN's and GradNorm's L_i(0);
 - MGN's authors update in float16 (CPU autocast, ``GradScaler("cpu")``) and with an overflowing
   loss scale in float32 never produces a non-finite loss weight;
 - torch.compile with a weighting that needs a double backward is refused in one line;
@@ -161,14 +163,19 @@ def test_collectives_see_only_the_group_devices_tensors(tmp_path, params_dict, m
     weight_syncs = 0
     for step in range(n_steps):
         before = len(seen)
-        w_synced = run.synced_w
+        w_synced, L0 = run.synced_w, getattr(run.weighting, "L0", None)
         values, _ = train_step(run, batch, step, n_steps)
         assert math.isfinite(values["loss_total"])
         weight_syncs += run.synced_w is not w_synced
-        assert len(seen) - before == 1 + (run.synced_w is not w_synced)  # the gradients, then any new weights
+        new_L0 = getattr(run.weighting, "L0", None) is not L0  # MGN's, GradNorm's L_i(0): the ranks' mean
+        # the gradients, then any L_i(0) and any new weights
+        assert len(seen) - before == 1 + new_L0 + (run.synced_w is not w_synced)
     assert weight_syncs >= 1  # the first step agrees on the starting weights
     if not run.weighting.adaptive:
         assert weight_syncs == 1
+    before = len(seen)
+    run.weighting.on_epoch_end(False)  # DWA sums its epoch's losses over the ranks: one all-reduce
+    assert len(seen) - before == (weighting == "dwa")
 
 
 def test_an_inf_on_one_rank_skips_the_step_on_every_rank(tmp_path, params_dict, monkeypatch):
@@ -194,6 +201,138 @@ def test_an_inf_on_one_rank_skips_the_step_on_every_rank(tmp_path, params_dict, 
     assert all(torch.equal(a, p.detach()) for a, p in zip(before, run.model.parameters()))
     assert run.scaler.get_scale() == scale0 / 2
     assert torch.equal(run.weighting.w, w0) and run.weighting.n_updates == updates0
+
+
+class _TwoRanks:
+    """A process group of two ranks in one process, one thread per rank (the stand-in for gloo):
+    ``all_reduce`` (a sum) takes each rank's tensor, waits for the other's and gives both ranks
+    the same sum, added in rank order."""
+
+    def __init__(self, world_size: int = 2) -> None:
+        import threading
+
+        self.world_size = world_size
+        self.barrier = threading.Barrier(world_size, timeout=300)
+        self.slots: list[torch.Tensor | None] = [None] * world_size
+        self.local = threading.local()
+
+    def all_reduce(self, t: torch.Tensor, op=None) -> None:
+        self.slots[self.local.rank] = t.detach().clone()
+        self.barrier.wait()
+        total = self.slots[0].clone()
+        for other in self.slots[1:]:
+            total += other
+        self.barrier.wait()  # every rank has read every slot before the next collective fills them
+        t.copy_(total)
+
+    def run(self, fns: list) -> list:
+        """``fns[r]()`` on rank r, each in its own thread; their results (the first error raised)."""
+        import threading
+
+        results, errors = [None] * self.world_size, []
+
+        def target(rank: int) -> None:
+            self.local.rank = rank
+            try:
+                results[rank] = fns[rank]()
+            except BaseException as err:  # noqa: BLE001  (re-raised below)
+                errors.append(err)
+                self.barrier.abort()
+
+        threads = [threading.Thread(target=target, args=(r,)) for r in range(self.world_size)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        if errors:
+            raise errors[0]
+        return results
+
+
+def _two_ranks(tmp_path, params_dict, monkeypatch, model: str, arm: str | None):
+    """Two ranks of one data-parallel run (the same initial network, as under torchrun), each with
+    its own batch, so their losses differ; the fake group they share."""
+    import itertools
+
+    import torch.distributed as dist
+
+    from compact_perception.core import catalog
+    from compact_perception.data.loader import make_loader
+
+    group = _TwoRanks()
+    monkeypatch.setattr(dist, "all_reduce", group.all_reduce)
+    monkeypatch.setattr(dist, "get_backend", lambda *a: "gloo")
+    params = tiny(params_dict, batch=2)
+    cache = make_cache(tmp_path / "cache", size=SIZE, counts=(4, 1, 1))
+    loader = make_loader(cache, "train", catalog.MODELS[model].lidar_channels, 2, shuffle=False)
+    batches = list(itertools.islice(iter(loader), 2))
+    runs = [build(params, model, cache, tmp_path / f"rank{r}", arm, _Group(rank=r, world_size=2)) for r in range(2)]
+    return group, runs, batches
+
+
+def test_data_parallel_dwa_starts_every_epoch_with_the_same_weights(tmp_path, params_dict, monkeypatch):
+    """Issue 55 item 7: two ranks whose batches differ close DWA's epoch means over both ranks'
+    steps, so after the second epoch's end (the first that sets w) both hold the same weights
+    before the third epoch's first step, not their own until that step's average."""
+    group, runs, batches = _two_ranks(tmp_path, params_dict, monkeypatch, "compact_15l", "dwa")
+
+    def two_epochs(rank: int):
+        run = runs[rank]
+        for _epoch in range(2):
+            for step in range(2):
+                train_step(run, batches[rank], step, 2)
+            run.weighting.on_epoch_end(False)
+        return run.weighting.w.clone(), [list(h) for h in run.weighting.history]
+
+    (w0, h0), (w1, h1) = group.run([lambda: two_epochs(0), lambda: two_epochs(1)])
+    assert not torch.equal(w0, torch.ones_like(w0))  # DWA set its weights
+    assert torch.equal(w0, w1), (w0.tolist(), w1.tolist())  # the weights of the next epoch's first step
+    assert h0 == h1  # the same epoch means: over both ranks' steps
+    assert all(r.weighting.ranks is not None for r in runs)  # the trainer handed the group to the weighting
+
+
+@pytest.mark.parametrize("model, arm", [("compact_15l_mgn", None), ("compact_15l", "gradnorm")])
+def test_data_parallel_L0_is_the_mean_over_the_ranks(tmp_path, params_dict, monkeypatch, model, arm):
+    """Issue 55 item 7: MGN's L_i(0) (recorded at every epoch's first step; GradNorm's at the run's
+    first) is the mean of the two ranks' own losses at that step, the same on both ranks."""
+    group, runs, batches = _two_ranks(tmp_path, params_dict, monkeypatch, model, arm)
+    tasks = runs[0].weighting.tasks
+    L0_step = 2 if model == "compact_15l_mgn" else 0  # the next epoch's first step; the run's first
+
+    def steps(rank: int):
+        run, losses = runs[rank], []
+        for k, (step, n_steps) in enumerate([(0, 2), (1, 2), (0, 2)]):
+            values, _ = train_step(run, batches[rank], step, n_steps)
+            if k == L0_step:
+                L0 = run.weighting.L0.clone()
+                losses = torch.stack([values[f"loss_{t}"].detach().to(torch.float64) for t in tasks])
+            if step == n_steps - 1:
+                run.weighting.on_epoch_end(False)
+        return L0, losses
+
+    (L0_a, own_a), (L0_b, own_b) = group.run([lambda: steps(0), lambda: steps(1)])
+    assert not torch.equal(own_a, own_b)  # the ranks' losses differ
+    assert torch.equal(L0_a, L0_b), (L0_a.tolist(), L0_b.tolist())
+    assert torch.equal(L0_a, (own_a + own_b) / 2)
+
+
+def test_one_process_reduces_nothing(tmp_path, params_dict, monkeypatch):
+    """Without a process group the weighting has no ``ranks``: no collective, the bytes of before."""
+    import torch.distributed as dist
+
+    def no_collective(*_a, **_k):
+        raise AssertionError("a collective in a one-process run")
+
+    monkeypatch.setattr(dist, "all_reduce", no_collective)
+    params = tiny(params_dict, batch=2)
+    cache = make_cache(tmp_path / "cache", size=SIZE, counts=(2, 1, 1))
+    for model, arm in (("compact_15l", "dwa"), ("compact_15l_mgn", None), ("compact_15l", "gradnorm")):
+        run = build(params, model, cache, tmp_path / f"{model}_{arm}", arm)
+        assert run.weighting.ranks is None
+        batch = batch_of(cache, model, 2)
+        for step in range(2):
+            train_step(run, batch, step, 2)
+        run.weighting.on_epoch_end(False)
 
 
 # ----------------------------------------------------------------------------- MGN under the GradScaler

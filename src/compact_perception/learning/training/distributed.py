@@ -28,6 +28,16 @@ class Dist:
     def is_main(self) -> bool:
         return self.rank == 0
 
+    def sum_over_ranks(self, t: torch.Tensor) -> torch.Tensor:
+        """The sum of ``t`` over the ranks, a new tensor on ``t``'s device (``t`` itself in one
+        process). A loss weighting closes a value from every rank's batches with it
+        (:attr:`~compact_perception.learning.weighting.base.LossWeighting.ranks`)."""
+        return _sum_over_ranks(t, self) if self.enabled else t
+
+    def mean_over_ranks(self, t: torch.Tensor) -> torch.Tensor:
+        """The mean of ``t`` over the ranks (:func:`average_tensor`)."""
+        return average_tensor(t, self)
+
 
 def init_from_env(device_type: str) -> Dist:
     """Join the process group that ``torchrun`` describes in the environment (if any)."""

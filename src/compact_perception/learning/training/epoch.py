@@ -230,9 +230,10 @@ def train_step(run: RunState, batch: dict, step: int, n_steps: int) -> tuple[dic
     finished epoch.
 
     Data-parallel order: the gradients are averaged before they are unscaled, so an inf on one
-    rank skips the step on every rank alike; the loss weights are averaged only when they changed
-    since they were last averaged (at a step or at an epoch's end, DWA's: a weighting replaces ``w``
-    when it changes it, never edits it in place, so an identity test tells)."""
+    rank skips the step on every rank alike; the loss weights are averaged only when a step changed
+    them since they were last averaged (a weighting replaces ``w`` when it changes it, never edits it
+    in place, so an identity test tells). Weights set at an epoch's end (DWA's) come from sums over
+    the ranks (the weighting's ``ranks``): the same on every rank from the next epoch's first step."""
     batch = prepare_batch(run, batch)
     run.optimizer.zero_grad(set_to_none=True)
     values = step_on_device(run, batch, step, n_steps)

@@ -49,6 +49,10 @@ Step protocol (trainer, every training step; ``step`` counts 0..n_steps-1 within
     # data-parallel: w averaged over ranks when it changed (w is replaced, never edited in place)
     ... after validation: weighting.on_epoch_end(improved)
 
+Data-parallel runs: the trainer sets ``weighting.ranks`` (the process group), through which a value
+taken from each rank's own batches is agreed over the ranks before it sets a weight (DWA's epoch
+sums, MGN's and GradNorm's L_i(0)); in one process it is ``None`` and nothing is reduced.
+
 - static / none: every hook is a no-op (w = 1).
 - mgn: step 0 records L_i(0) (detached); step ``n_steps - 1`` (the same step when n_steps == 1)
   does one update of w (G_i, r_i, detached targets, L_MGN, SGD step, positive floor, sum w = T).

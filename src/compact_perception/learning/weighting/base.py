@@ -1,7 +1,7 @@
 """The loss-weighting interface (see the package docstring for the step protocol)."""
 from __future__ import annotations
 
-from typing import Any, Callable, ClassVar, Mapping, Sequence
+from typing import Any, Callable, ClassVar, Mapping, Protocol, Sequence
 
 import torch
 from torch import Tensor, nn
@@ -11,7 +11,7 @@ from ...core.config import Strict
 from ...core.errors import NonFinite
 from ...core.registry import Registry
 
-__all__ = ["LossWeighting", "WEIGHTINGS", "finite_or_raise", "register", "recipe_params", "shared_weights"]
+__all__ = ["LossWeighting", "Ranks", "WEIGHTINGS", "finite_or_raise", "register", "recipe_params", "shared_weights"]
 
 
 def finite_or_raise(w: Tensor, what: str) -> Tensor:
@@ -21,6 +21,15 @@ def finite_or_raise(w: Tensor, what: str) -> Tensor:
     if not bool(torch.isfinite(w).all()):
         raise NonFinite(f"non-finite {what} ({[round(float(x), 6) for x in w.tolist()]})")
     return w
+
+
+class Ranks(Protocol):
+    """The data-parallel process group as a loss weighting sees it (training/distributed.py's
+    ``Dist``): sums and means over the ranks, each a new tensor on the given tensor's device."""
+
+    def sum_over_ranks(self, t: Tensor) -> Tensor: ...
+
+    def mean_over_ranks(self, t: Tensor) -> Tensor: ...
 
 
 class LossWeighting:
@@ -60,6 +69,11 @@ class LossWeighting:
     #: nor the last of an epoch) do the same device work whatever the step, read nothing from the
     #: device, change no Python-side state and replace none of its tensors (in-place updates only).
     capturable: bool = False
+
+    #: The process group of a data-parallel run (the trainer sets it: training/train.py), through
+    #: which a value closed from every rank's batches is agreed before it sets a weight: DWA's epoch
+    #: means, MGN's and GradNorm's L_i(0). ``None`` in one process: nothing is reduced, no op added.
+    ranks: Ranks | None = None
 
     def __init__(
         self,

@@ -43,7 +43,9 @@ class DWAWeighting(LossWeighting):
 
     The sums and counts are device tensors, added to without a host read (the sum of a finite
     loss is the Python float sum it was: float64 adds from 0.0, in step order); the epoch's end
-    reads them once.
+    reads them once. Data-parallel (:attr:`ranks`): the epoch's end sums them over the ranks
+    before it closes the means, so ``L_k(t)`` is the mean over every rank's steps and every rank
+    starts the next epoch with the same w.
     """
 
     capturable = True  # a step adds to its sums in place; w changes at the epoch's end
@@ -87,10 +89,20 @@ class DWAWeighting(LossWeighting):
         z = sum(e)
         return torch.tensor([self.T * x / z for x in e], dtype=torch.float64)
 
+    def _epoch_sums(self) -> tuple[list[float], list[int]]:
+        """The epoch's sums and counts as the host reads them (one read): in a data-parallel run
+        summed over the ranks first (one all-reduce; a count is exact in float64), so every rank
+        closes the same means of the global batch's losses and sets the same w before the next
+        epoch's first step."""
+        if self.ranks is None:
+            return self.sums.tolist(), self.counts.tolist()
+        both = self.ranks.sum_over_ranks(torch.cat([self.sums, self.counts.to(torch.float64)])).tolist()
+        return both[: self.T], [int(n) for n in both[self.T:]]
+
     def on_epoch_end(self, improved: bool) -> None:
-        """Close the epoch's means (one read of the sums); from the third recorded epoch on, w for
-        the next epoch."""
-        sums, counts = self.sums.tolist(), self.counts.tolist()
+        """Close the epoch's means (one read of the sums; over every rank's steps in a
+        data-parallel run); from the third recorded epoch on, w for the next epoch."""
+        sums, counts = self._epoch_sums()
         if all(n > 0 for n in counts):
             means = [s / n for s, n in zip(sums, counts)]
             self.history = (self.history + [means])[-2:]

@@ -62,7 +62,7 @@ class GradNormWeighting(GradNormCore):
         """One GradNorm update per training step: this step's gradient of L_grad on w, applied by
         :meth:`after_backward` once the step's backward has used w(t) (Chen et al. 2018)."""
         if self.L0 is None:
-            self.L0 = self._loss_vector(losses)
+            self.L0 = self._initial_losses(losses)
         self._pending = self._grad_w(losses, model)
 
     def after_backward(self, taken: bool = True) -> None:

@@ -142,6 +142,13 @@ class GradNormCore(LossWeighting):
             raise KeyError(f"losses lack task(s) {missing}; got {sorted(losses)}")
         return torch.stack([losses[t].detach().to(torch.float64) for t in self.tasks])
 
+    def _initial_losses(self, losses: Mapping[str, Tensor]) -> Tensor:
+        """L_i(0) of eq. (11): this step's task losses (float64, detached); in a data-parallel run
+        their mean over the ranks (one all-reduce, :attr:`ranks`), so every rank divides by the
+        same L_i(0), that of the global batch."""
+        L0 = self._loss_vector(losses)
+        return L0 if self.ranks is None else self.ranks.mean_over_ranks(L0)
+
     def _grad_norms(self, losses: Mapping[str, Tensor], model: nn.Module) -> Tensor:
         """``n_i = ||grad_W L_i||_2`` (float64, (T,), on the device); writes no ``.grad``. Under a
         GradScaler the loss is scaled in and the norm scaled out; a scaled norm that overflowed is
@@ -261,11 +268,11 @@ class GradNormCore(LossWeighting):
 
 @register("mgn")
 class MGNWeighting(GradNormCore):
-    """MGN (Algorithm 1): L_i(0) recorded at step 0 of every epoch; one update of w at the last
-    step of the epoch (``step == n_steps - 1``; with ``n_steps == 1`` that is the same step), by
-    plain SGD (``w <- w - lr dL_MGN/dw``, lr 0.1 halved on plateau down to lr_min 1e-4), then the
-    floor and eq. (15). In the default mode L_MGN touches neither a network parameter nor its
-    ``.grad`` and ``total()`` treats w as constants.
+    """MGN (Algorithm 1): L_i(0) recorded at step 0 of every epoch (the mean over the ranks in a
+    data-parallel run); one update of w at the last step of the epoch (``step == n_steps - 1``;
+    with ``n_steps == 1`` that is the same step), by plain SGD (``w <- w - lr dL_MGN/dw``, lr 0.1
+    halved on plateau down to lr_min 1e-4), then the floor and eq. (15). In the default mode L_MGN
+    touches neither a network parameter nor its ``.grad`` and ``total()`` treats w as constants.
 
     ``authors_mode=True`` (MgnParams.authors_mode, SPEC 7) reproduces the authors' public code:
     G_i is built with ``create_graph=True`` and ``L_MGN.backward(retain_graph=True)`` is run, so
@@ -343,7 +350,7 @@ class MGNWeighting(GradNormCore):
         if n_steps < 1 or not 0 <= step < n_steps:
             raise ValueError(f"step {step} outside [0, n_steps={n_steps})")
         if step == 0:
-            self.L0 = self._loss_vector(losses)
+            self.L0 = self._initial_losses(losses)
         if step == n_steps - 1:
             g = self._grad_w_authors(losses, model) if self.authors_mode else self._grad_w(losses, model)
             self._pending = self._renormalise(self.w - self.lr * g)
