@@ -40,3 +40,22 @@ def params_dict() -> dict:
     """A fresh, mutable copy of the committed params.yaml."""
     with (ROOT / "params.yaml").open() as fh:
         return copy.deepcopy(yaml.safe_load(fh))
+
+
+@pytest.fixture()
+def stand_in_pinning(monkeypatch) -> set:
+    """The CPU build cannot pin memory: a stand-in accelerator and ``Tensor.pin_memory`` (a pinned
+    copy, its ``id`` kept in the returned set), so a test sees what a pinning loader pins."""
+    import torch
+
+    pinned: set[int] = set()
+
+    def pin(self, *_a, **_k):
+        out = self.clone()
+        pinned.add(id(out))
+        return out
+
+    monkeypatch.setattr(torch.Tensor, "pin_memory", pin)
+    monkeypatch.setattr(torch.accelerator, "is_available", lambda: True)
+    monkeypatch.setattr(torch.accelerator, "current_accelerator", lambda *a, **k: torch.device("cpu"))
+    return pinned

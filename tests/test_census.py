@@ -290,22 +290,13 @@ def test_the_loader_finds_the_labelled_pixels_a_model_asks_for(tmp_path):
     assert torch.equal(moved["labelled"]["ls"].views[0], torch.nonzero(batch["ls"].reshape(-1) != 255).reshape(-1))
 
 
-def test_a_pinning_loader_pins_the_labelled_pixel_lists(tmp_path, monkeypatch):
+def test_a_pinning_loader_pins_the_labelled_pixel_lists(tmp_path, stand_in_pinning):
     """Issue 55 item 4: a DataLoader with ``pin_memory=True`` (as training builds it on a GPU) returns
     PolarNet's and GradNorm SegNet's labelled-pixel lists pinned, like the batch's tensors. The CPU
     build cannot pin: a stand-in accelerator and ``Tensor.pin_memory`` (a pinned copy, marked)."""
     from compact_perception.data.loader import Labelled, make_loader
 
-    pinned: set[int] = set()
-
-    def pin(self, *_a, **_k):
-        out = self.clone()
-        pinned.add(id(out))
-        return out
-
-    monkeypatch.setattr(torch.Tensor, "pin_memory", pin)
-    monkeypatch.setattr(torch.accelerator, "is_available", lambda: True)
-    monkeypatch.setattr(torch.accelerator, "current_accelerator", lambda *a, **k: torch.device("cpu"))
+    pinned = stand_in_pinning
     cache = make_cache(tmp_path / "cache", size=16, counts=(2, 1, 1))
     loader = make_loader(cache, "train", 15, 2, shuffle=False, pin_memory=True, labelled=("ss", "ls"))
     batch = next(iter(loader))

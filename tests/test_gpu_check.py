@@ -62,7 +62,7 @@ def _gpu_check():
         sys.path.remove(str(ROOT / "benchmarks"))
 
 
-def test_one_batch_is_loaded_as_training_loads_it(tmp_path, monkeypatch):
+def test_one_batch_is_loaded_as_training_loads_it(tmp_path, stand_in_pinning):
     """Issue 55 item 8: gpu-check's batch is pinned on a GPU, as the training stage's loader pins
     it, with the labelled-pixel lists the run's network asks for; on a CPU nothing is pinned. The
     CPU build cannot pin: a stand-in accelerator and ``Tensor.pin_memory`` (a pinned copy, marked)."""
@@ -73,16 +73,7 @@ def test_one_batch_is_loaded_as_training_loads_it(tmp_path, monkeypatch):
     from synthetic import make_cache
 
     gc = _gpu_check()
-    pinned: set[int] = set()
-
-    def pin(self, *_a, **_k):
-        out = self.clone()
-        pinned.add(id(out))
-        return out
-
-    monkeypatch.setattr(torch.Tensor, "pin_memory", pin)
-    monkeypatch.setattr(torch.accelerator, "is_available", lambda: True)
-    monkeypatch.setattr(torch.accelerator, "current_accelerator", lambda *a, **k: torch.device("cpu"))
+    pinned = stand_in_pinning
     cache = make_cache(tmp_path / "cache", size=16, counts=(2, 1, 1))
     on_cpu = gc.one_batch(cache, "compact_15l", 2)
     assert id(on_cpu["rgb"]) not in pinned and "labelled" not in on_cpu

@@ -455,6 +455,18 @@ def _readonly(*_a, **_k):
     raise OSError(errno.EROFS, os.strerror(errno.EROFS), "out/file")
 
 
+def stage_params(tmp_path: Path, stage: str) -> Path:
+    """The params file one stage reads in ``tmp_path`` as a test of that stage alone sets it up:
+    evaluate's is a finished run tree's; the others', the repository's on the CPU, a short benchmark."""
+    if stage == "evaluate":
+        _eval_tree(tmp_path)
+        return tmp_path / "params.yaml"
+    d = repo_params_dict()
+    d["benchmark"].update(warmup=0, runs=3)
+    d["train"]["device"] = "cpu"
+    return _params_file(tmp_path, d)
+
+
 @pytest.mark.parametrize("stage, target, argv", [
     ("generate", "compact_perception.data.world.generate.generate_dataset", ["--dataset", "A"]),
     ("preprocess", "pipeline.preprocess.preprocess_dataset", ["--dataset", "A"]),
@@ -470,14 +482,7 @@ def test_every_stage_turns_a_failed_write_into_one_line(tmp_path, monkeypatch, s
     """A read-only file system (or a full disk) in any stage: one line with the path, exit status 1."""
     import importlib
 
-    if stage == "evaluate":
-        _eval_tree(tmp_path)
-        params = tmp_path / "params.yaml"
-    else:
-        d = repo_params_dict()
-        d["benchmark"].update(warmup=0, runs=3)
-        d["train"]["device"] = "cpu"
-        params = _params_file(tmp_path, d)
+    params = stage_params(tmp_path, stage)
     monkeypatch.chdir(tmp_path)
     module, name = target.rsplit(".", 1)
     monkeypatch.setattr(importlib.import_module(module), name, _readonly)

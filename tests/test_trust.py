@@ -25,7 +25,7 @@ from compact_perception.core.io import read_json
 from repo_params import ROOT, repo_params_dict
 from test_errors import _eval_tree, _exit_message, _files
 from test_pipeline_e2e import dvc_env, run
-from test_reliability import _params_file, _tiny, _train_main
+from test_reliability import _params_file, _tiny, _train_main, stage_params
 from synthetic import make_cache
 
 MODEL = "compact_1l"
@@ -189,15 +189,9 @@ def _stage_editing_params(tmp_path: Path, monkeypatch, stage: str, comment_only:
     """``(main, argv)`` of ``stage`` in ``tmp_path``, its work replaced by an edit of its params file."""
     import importlib
 
+    params = stage_params(tmp_path, stage)
     if stage == "evaluate":
-        _eval_tree(tmp_path)
-        params = tmp_path / "params.yaml"
         monkeypatch.setattr("pipeline.evaluate.evaluate_floors", lambda *a, **k: {})
-    else:
-        d = repo_params_dict()
-        d["benchmark"].update(warmup=0, runs=3)
-        d["train"]["device"] = "cpu"
-        params = _params_file(tmp_path, d)
     monkeypatch.chdir(tmp_path)
     target, returns, argv = _STEPS[stage]
     module, name = target.rsplit(".", 1)
