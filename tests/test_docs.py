@@ -215,6 +215,20 @@ def test_the_disk_figures_are_the_sizes_dvc_lock_records() -> None:
     assert f"{runs:.1f} GB" in sharing
 
 
+def test_sharing_what_you_ran_commits_the_params_it_ran_with() -> None:
+    """After ``dvc exp run -S`` params.yaml holds the values the runs were made with: "Share what you
+    ran" commits it with dvc.lock (without it a colleague's clone saw train, evaluate and report
+    changed and retrained), and the README and docs/sharing.md push the same way."""
+    sharing = (ROOT / "docs/sharing.md").read_text().split("## Share what you ran", 1)[1].split("\n## ", 1)[0]
+    git_add = next(line for line in sharing.splitlines() if line.startswith("git add"))
+    assert {"params.yaml", "dvc.lock", "results", "reports"} <= set(git_add.split("&&")[0].split())
+    readme = (ROOT / "README.md").read_text()
+    readme_push = next(line for line in readme.splitlines() if line.startswith("bin/venv dvc push"))
+    assert "params.yaml" in readme_push and "dvc.lock" in readme_push
+    pushes = re.findall(r"dvc push[^\n#]*", sharing) + [readme_push.split("#")[0]]
+    assert pushes and all("--run-cache" in p for p in pushes), pushes
+
+
 def test_every_byte_identity_promise_states_its_limits() -> None:
     """fp32 makes results byte-identical on x86-64 CPUs with AVX2, and not the runs of 15L+MGN
     (authors' code): a paragraph that promises it says both."""
