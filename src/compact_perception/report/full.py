@@ -114,8 +114,8 @@ def _decided_section(parts: Any, claims: "pd.DataFrame") -> list[str]:
         need_txt = ("" if row["verdict"] != "inconclusive" or pd.isna(need)
                     else f"; seeds per model that would detect the paper's effect: {need}")
         out.append(f"- {DATASET_LABEL.get(row['dataset'], row['dataset'])}, {row['statement']}: {row['verdict']}, "
-                   f"measured {row['measured']:+.3f}, 95% interval [{row['ci_low']:+.3f}, {row['ci_high']:+.3f}] "
-                   f"(the paper: {row['paper']}){need_txt}")
+                   f"measured {row['measured']:+.3f}, 95% interval [{row['ci_low']:+.3f}, {row['ci_high']:+.3f}]"
+                   + ("" if pd.isna(row["paper"]) else f" (the paper: {row['paper']})") + need_txt)
     return out + [""]
 
 
