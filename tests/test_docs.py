@@ -229,6 +229,19 @@ def test_sharing_what_you_ran_commits_the_params_it_ran_with() -> None:
     assert pushes and all("--run-cache" in p for p in pushes), pushes
 
 
+def test_the_docs_say_what_full_makes_decidable_and_point_to_what_exists() -> None:
+    """`scale: full` gives 3 seeds where set A's headline needs about 16: the README says it makes
+    sets decidable, never that it decides them; Table III's claims are exact counts except FPS
+    (docs/claims.md's exception), not all exact counts; the Makefile's first line names a README
+    section that exists (it named "Quick start" after the section became "Reproduce")."""
+    readme = (ROOT / "README.md").read_text()
+    assert not re.search(r"`scale: full`\W{0,3}decides\b|full` decides", readme)
+    assert not re.search(r"\bexact-count claims of Table III", readme)
+    first = (ROOT / "Makefile").read_text().splitlines()[0]
+    section = re.search(r'README "([^"]+)"', first)[1]
+    assert re.search(rf"^#+ {re.escape(section)}$", readme, re.M), first
+
+
 def test_every_byte_identity_promise_states_its_limits() -> None:
     """fp32 makes results byte-identical on x86-64 CPUs with AVX2, and not the runs of 15L+MGN
     (authors' code): a paragraph that promises it says both."""
