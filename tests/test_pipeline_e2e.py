@@ -235,17 +235,17 @@ def test_parameter_changes_touch_only_their_stages(pipeline):
     repo, env, _ = pipeline
     original = (repo / "params.yaml").read_text()
     try:
-        # the report reads every setting that shapes a run too: it compares them with those of the
-        # recorded runs trained to their plateau (report/plateau.py) and names what changed (6 s)
+        # the reports read every setting that shapes a run too: they compare them with those of the
+        # recorded runs (report/plateau.py, report/full.py) and name what changed (6 s, 2 s)
         set_param(repo, ("datasets", "A", "seed_offset"), 7)
-        assert changed_stages(repo, env) == {"generate@A", "report"}
+        assert changed_stages(repo, env) == {"generate@A", "report", "report_full"}
         (repo / "params.yaml").write_text(original)
         set_param(repo, ("preprocess", "fill_neighbours"), False)
-        assert changed_stages(repo, env) == {"preprocess@A", "ingest_nuscenes", "report"}
+        assert changed_stages(repo, env) == {"preprocess@A", "ingest_nuscenes", "report", "report_full"}
         (repo / "params.yaml").write_text(original)
         # a training budget is not data: the seeds and epoch cap leave generate and preprocess alone
         set_param(repo, ("datasets", "A", "training", "max_epochs", "default"), 3)
-        assert changed_stages(repo, env) == {"train@A", "evaluate@A", "report"}
+        assert changed_stages(repo, env) == {"train@A", "evaluate@A", "report", "report_full"}
     finally:
         (repo / "params.yaml").write_text(original)
     assert changed_stages(repo, env) == set()
@@ -267,7 +267,8 @@ def test_a_recipe_or_arm_parameter_retrains_only_its_runs(pipeline):
     set_param(repo, ("train", "models", "compact_15l_mgn", "mgn", "alpha"), 1.2)
     set_param(repo, ("study", "arms", "uw", "uw", "lr"), 0.01)
     log = run(["dvc", "repro"], repo, env)
-    assert ran_stages(log) == {f"train@{ds}" for ds in DATASETS} | {f"evaluate@{ds}" for ds in DATASETS} | {"report"}
+    assert ran_stages(log) == ({f"train@{ds}" for ds in DATASETS} | {f"evaluate@{ds}" for ds in DATASETS}
+                               | {"report", "report_full"})
     assert retrained(log) == ({f"{ds}/compact_15l_mgn/seed{k}" for ds in DATASETS for k in SEEDS}
                               | {f"A/study/uw/seed{k}" for k in SEEDS})
 
