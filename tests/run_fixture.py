@@ -24,3 +24,20 @@ def run_in(params: Any, model: str, cache: Path, run_dir: Path, *, arm: Optional
     paths.update({k: v for k, v in fields.items() if k in PATH_FIELDS})
     run = planned_run(params, dataset, model, seed, arm).moved(**paths)
     return dataclasses.replace(run, **{k: v for k, v in fields.items() if k not in PATH_FIELDS})
+
+
+def nudged_replay(run: Any) -> Any:
+    """A stand-in graph whose every replay runs the step, then moves the run's first parameter by
+    1e-3: a replay that lands far from the eager step, which the first-replay check must refuse."""
+    import torch
+
+    from compact_perception.learning.training.capture import Uncaptured
+
+    class Nudged(Uncaptured):
+        def replay(self) -> None:
+            super().replay()
+            with torch.no_grad():
+                p = next(run.model.parameters())
+                p[(0,) * p.dim()] += 1e-3
+
+    return Nudged()

@@ -23,7 +23,7 @@ from compact_perception.learning.training.epoch import epoch_means, train_step
 from compact_perception.learning.training.state import RunSpec
 
 from repo_params import cap_epochs
-from run_fixture import run_in
+from run_fixture import nudged_replay, run_in
 from synthetic import make_cache
 
 BATCH, FRAMES, EPOCHS = 2, 10, 3  # 5 steps an epoch: the first and last eager, 3 replayed
@@ -139,15 +139,8 @@ def test_a_replay_that_differs_falls_back_with_one_line(tmp_path, params_dict, c
     eager_run, batches = _run(params, "compact_15l", None, cache, tmp_path / "eager")
     eager = _train(eager_run, batches, train_step)
 
-    class Nudged(Uncaptured):
-        def replay(self) -> None:
-            super().replay()
-            with torch.no_grad():
-                p = next(run.model.parameters())
-                p[(0,) * p.dim()] += 1e-3
-
     run, _ = _run(params, "compact_15l", None, cache, tmp_path / "nudged")
-    step = CapturedStep(run, Nudged())
+    step = CapturedStep(run, nudged_replay(run))
     with caplog.at_level(logging.WARNING, logger="compact_perception.learning.training.capture"):
         out = _train(run, batches, step)
     lines = [r.getMessage() for r in caplog.records]
@@ -251,15 +244,8 @@ def test_a_replay_as_far_from_eager_as_eager_is_from_itself_engages(tmp_path, pa
             step(run, batch, k, len(batches))
     assert step.failed is None and step.replays == len(batches) - 2 and not caplog.records
 
-    class Nudged(Uncaptured):
-        def replay(self) -> None:
-            super().replay()
-            with torch.no_grad():
-                p = next(run2.model.parameters())
-                p[(0,) * p.dim()] += 1e-3
-
     run2, _ = _run(params, "compact_15l", None, cache, tmp_path / "nudged")
-    step2 = CapturedStep(run2, Nudged())
+    step2 = CapturedStep(run2, nudged_replay(run2))
     for k, batch in enumerate(batches):
         step2(run2, batch, k, len(batches))
     assert step2.failed and "two eager runs of it differ by" in step2.failed and step2.replays == 0

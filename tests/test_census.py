@@ -80,7 +80,7 @@ from compact_perception.learning.training.state import RunSpec  # noqa: E402
 from compact_perception.learning.weighting import WEIGHTINGS  # noqa: E402
 
 from repo_params import cap_epochs  # noqa: E402
-from run_fixture import run_in  # noqa: E402
+from run_fixture import nudged_replay, run_in  # noqa: E402
 from synthetic import make_cache  # noqa: E402
 
 #: Every registered model with its own recipe, and the compact 15L network with each study arm
@@ -335,15 +335,8 @@ def test_bench_census_times_real_replays_and_says_so(tmp_path, params_dict):
     assert rate is not None and rate > 0 and why == "" and run.captured.failed is None
     assert run.captured.replays == 4 + 1 + 3  # the warm-up epoch's 4, the recapture's checked one, 3 timed
 
-    class Nudged(Uncaptured):
-        def replay(self) -> None:
-            super().replay()
-            with torch.no_grad():
-                p = next(run2.model.parameters())
-                p[(0,) * p.dim()] += 1e-3
-
     run2 = bc.build(params, "compact_15l", None, torch.device("cpu"), cache, tmp_path / "r2")
-    run2.captured = CapturedStep(run2, Nudged())
+    run2.captured = CapturedStep(run2, nudged_replay(run2))
     rate, why = bc.captured_samples_per_s(run2, batch, 3)
     assert rate is None and "eager step's bytes" in why
 
