@@ -28,8 +28,9 @@ from compact_perception.core.errors import RunError, os_error_line
 from compact_perception.core.params_errors import shown
 from compact_perception.learning.plan import PlannedRun, dataset_runs, recipe_of
 from compact_perception.execution.executor import chosen_executor, run_jobs
-from compact_perception.execution.jobs import Job, JobError
+from compact_perception.execution.jobs import Job, JobError, RunAloneError
 from compact_perception.execution.settings import SettingsError
+from compact_perception.learning.training.memory import measure_in_subprocess
 from compact_perception.learning.training.parallel import stage_processes
 from compact_perception.learning.training.train import finished_runs, run_seed, train_run
 from compact_perception.learning.weighting import weighting_settings
@@ -41,16 +42,31 @@ log = logging.getLogger("pipeline.train")
 
 def train_one(params: Params, run: PlannedRun, *, progress: bool) -> dict:
     """One planned run, in a worker process, a cluster job or this one (``progress``: a per-step
-    bar, for a run alone): its summary's stopping facts."""
+    bar, for a run alone): its summary's stopping facts. A run that runs out of its device's memory
+    fails alone (:class:`~compact_perception.execution.jobs.RunAloneError`, one line naming the run
+    and what to set): the stage's other runs go on, and the worker's next run starts clean."""
     worker_logging()
     try:
         return _facts(train_run(params, run, progress=progress))
     except MemoryError as err:  # torch.OutOfMemoryError is also a RuntimeError: this run's, in one line
-        raise RunError(out_of_memory_line(run, err)) from None
+        line = out_of_memory_line(run, err)
     except RuntimeError as err:
         if isinstance(err, RunError) or "out of memory" not in str(err):
             raise
-        raise RunError(out_of_memory_line(run, err)) from None
+        line = out_of_memory_line(run, err)
+    release_device_memory()  # the failed run's tensors are gone with its frames: the worker's next run starts clean
+    raise RunAloneError(line)
+
+
+def release_device_memory() -> None:
+    """Give the caching allocator's free blocks back to the GPU (after a run that ran out of memory)."""
+    import gc
+
+    import torch
+
+    gc.collect()
+    if torch.cuda.is_available():
+        torch.cuda.empty_cache()
 
 
 def out_of_memory_line(run: PlannedRun, err: BaseException) -> str:
@@ -142,7 +158,9 @@ def main(argv: list[str] | None = None) -> None:
         finished = finished_runs(params, runs, int(os.environ.get("WORLD_SIZE", "1")))
         todo = [r for r in runs if r.name not in finished]
         alone = len(runs) == 1
-        processes, on_gpu = stage_processes(params.train)
+        # on CUDA under auto, as many runs per GPU as its memory holds by the costliest run, measured
+        processes, on_gpu = stage_processes(params.train, partial(measure_in_subprocess, params,
+                                                                  max(todo, key=lambda r: r.cost)) if todo else None)
         trained = run_jobs(partial(train_one, params, progress=alone), [Job(r.name, r, cost=r.cost) for r in todo],
                            1 if alone else processes, desc=f"train {args.dataset}", gpu=on_gpu,
                            executor=executor) if todo else []

@@ -349,18 +349,58 @@ def test_auto_on_a_cpu_says_the_count_it_chose_and_why(monkeypatch, caplog):
     assert not [r for r in caplog.records if "parallel_runs" in r.getMessage()]   # a count as written: no line
 
 
-def test_a_runs_out_of_memory_is_its_own_one_line_error(monkeypatch, tmp_path):
-    """A worker's CUDA out-of-memory error names the run and what to set, in one line."""
-    import torch
+# ----------------------------------------------------------------------------- a job that dies without a result
+class _StandInJob:
+    def __init__(self, job_id: str, folder: Path) -> None:
+        from types import SimpleNamespace
 
-    import pipeline.train as stage
+        self.job_id = job_id
+        self.paths = SimpleNamespace(result_pickle=folder / f"{job_id}_result.pkl")
 
-    def oom(params, run, progress):
-        raise torch.OutOfMemoryError("CUDA out of memory. Tried to allocate 2.00 GiB (GPU 0; 15.7 GiB total)\nmore")
 
-    params = parse_params(repo_params_dict())
-    run = run_in(params, "compact_1l", tmp_path / "cache", tmp_path / "run")
-    monkeypatch.setattr(stage, "train_run", oom)
-    name, value, error = call(partial(stage.train_one, params, progress=False), Job(run.name, run))
-    assert value is None and error.startswith(f"{run.name}: out of memory (CUDA out of memory. Tried to allocate")
-    assert "set train.parallel_runs to a lower count" in error and "\n" not in error
+def test_the_controller_s_word_ends_the_wait_for_a_job_that_left_no_result(monkeypatch, tmp_path):
+    """squeue (a stand-in here; the real one in test_slurm_service.py) says 7_0 FAILED and lists
+    no 7_2 any more: each counts as dead once it has been so for DEAD_AFTER_S with no result file;
+    7_1 running, and 7_3 COMPLETED with its result file, are not."""
+    from subprocess import CompletedProcess
+
+    from compact_perception.execution import submitit_backend as sb
+
+    said = "7_0|FAILED\n7_1|RUNNING\n7_3|COMPLETED\n"
+    asked = []
+
+    def squeue(cmd, **kw):
+        asked.append(cmd)
+        return CompletedProcess(cmd, 0, said, "")
+
+    monkeypatch.setattr(sb.subprocess, "run", squeue)
+    now = [100.0]
+    watch = sb.QueueWatch(dead_after_s=30, clock=lambda: now[0])
+    subs = [_StandInJob(f"7_{i}", tmp_path) for i in range(4)]
+    (tmp_path / "7_3_result.pkl").write_bytes(b"")
+    assert watch.dead(subs) == {}                               # just seen ended: the result may follow
+    now[0] = 131.0
+    assert {s.job_id: state for s, state in watch.dead(subs).items()} == {"7_0": "FAILED", "7_2": "gone"}
+    assert asked[0][:5] == ["squeue", "--noheader", "--array", "--states=all", "--format=%i|%T"]
+    assert asked[0][-1] == "7_0,7_1,7_2,7_3"
+
+
+def test_a_requeued_job_is_not_dead_and_no_answer_judges_nothing(monkeypatch, tmp_path):
+    from subprocess import CompletedProcess
+
+    from compact_perception.execution import submitit_backend as sb
+
+    answers = iter(["7_0|TIMEOUT\n", "7_0|PENDING\n", "7_0|TIMEOUT\n"])
+    monkeypatch.setattr(sb.subprocess, "run", lambda cmd, **kw: CompletedProcess(cmd, 0, next(answers), ""))
+    now = [0.0]
+    watch = sb.QueueWatch(dead_after_s=30, clock=lambda: now[0])
+    job = _StandInJob("7_0", tmp_path)
+    watch.dead([job])
+    now[0] = 20.0
+    watch.dead([job])                    # requeued: pending again, its clock restarts
+    now[0] = 40.0
+    assert watch.dead([job]) == {}       # ended 0 s ago, not 40
+    monkeypatch.setattr(sb.subprocess, "run", lambda cmd, **kw: CompletedProcess(cmd, 1, "", "slurm_load_jobs error: "
+                                                                                             "Unable to contact slurm controller"))
+    now[0] = 100.0
+    assert watch.dead([job]) == {}       # the controller did not answer: nothing is judged

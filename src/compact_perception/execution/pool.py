@@ -18,7 +18,9 @@ only its GPU (``CUDA_VISIBLE_DEVICES``), so ``train.device: cuda`` is that GPU.
 
 The first failing job stops the stage: the pool is terminated (a killed run keeps its last
 finished epoch in ``last.pt``, from which the next ``dvc repro`` resumes) and its one-line error
-is re-raised in the stage process.
+is re-raised in the stage process. A run that fails alone (it ran out of its GPU's memory,
+:class:`~.jobs.RunAloneError`) stops only itself: its worker takes the next job, the
+other runs finish, and then the stage fails with that run's line (:func:`~.jobs.in_order`).
 """
 from __future__ import annotations
 
@@ -32,7 +34,7 @@ from typing import Any, Callable, Optional, Sequence
 from tqdm.auto import tqdm
 
 from ..core.machine import bounded
-from .jobs import Job, JobError, Outcome, call as _call, longest_first
+from .jobs import Failed, Job, JobError, Outcome, call as _call, in_order, longest_first
 
 log = logging.getLogger(__name__)
 
@@ -134,7 +136,7 @@ def run_pool(fn: Callable[..., Any], jobs: Sequence[Job], processes: int, desc: 
             pool.join()
     finally:
         bar.close()
-    return [results[j.name] for j in jobs]
+    return in_order(results, jobs)
 
 
 class _Caller:
@@ -157,4 +159,7 @@ def collect(out: Outcome, results: dict[str, Any], bar: Optional[Any]) -> None:
     results[name] = value
     if bar is not None:
         bar.update()
-    log.info("finished %s (%d done)", name, len(results))
+    if isinstance(value, Failed):  # this run alone: the others go on, the stage fails at the end
+        log.error("%s failed alone; the other runs go on: %s", name, value.line)
+    else:
+        log.info("finished %s (%d done)", name, len(results))

@@ -18,6 +18,13 @@ the same digest) and ends with the uninterrupted run's bytes. ``max_requeues`` b
 
 The first failing job stops the stage: the others are cancelled (a run keeps its last finished
 epoch) and its one-line error is the stage's.
+
+A job that dies without a result (killed, out of the node's memory, cancelled from outside):
+submitit sees a job end by its result file, else by ``sacct``, which a SLURM without accounting
+storage does not answer (submitit then logs "Bypassing sacct error" and keeps waiting). So the
+executor also asks the controller itself (:class:`QueueWatch`: ``squeue``, which needs no
+accounting): a job it reports in an ended state, or no longer lists, for :data:`DEAD_AFTER_S`
+with still no result file has ended without one, and the stage fails with its log.
 """
 from __future__ import annotations
 
@@ -25,6 +32,7 @@ import logging
 import os
 import shlex
 import shutil
+import subprocess
 import time
 import traceback
 from pathlib import Path
@@ -35,13 +43,22 @@ from submitit.helpers import Checkpointable, DelayedSubmission
 from tqdm.auto import tqdm
 
 from ..core.determinism import PINNED_ENV, UNPINNED_ENV_VAR
-from .jobs import Job, JobError, Outcome, call, longest_first
+from .jobs import Job, JobError, Outcome, call, in_order, longest_first
 from .pool import collect
 from .settings import ClusterSettings, SettingsError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["RunTask", "SubmititExecutor", "pin_lines"]
+__all__ = ["DEAD_AFTER_S", "QueueWatch", "RunTask", "SubmititExecutor", "pin_lines"]
+
+#: How long a job may be ended (or gone from the queue) by the controller's word with no result
+#: file before it counts as dead: the file is written just before the job's process ends, and a
+#: shared filesystem may show it a little later.
+DEAD_AFTER_S = 30.0
+#: SLURM's job states that are not waiting or running (``squeue --states=all``); a requeued job
+#: is PENDING (or REQUEUED) again.
+ENDED_STATES = frozenset({"BOOT_FAIL", "CANCELLED", "COMPLETED", "DEADLINE", "FAILED", "NODE_FAIL",
+                          "OUT_OF_MEMORY", "PREEMPTED", "REVOKED", "SPECIAL_EXIT", "TIMEOUT"})
 
 
 def pin_lines(environ: Any = None) -> list[str]:
@@ -131,12 +148,18 @@ class SubmititExecutor:
     def _wait(self, pending: dict[Any, int], jobs: Sequence[Job], desc: str) -> list[Any]:
         results: dict[str, Any] = {}
         bar = tqdm(total=len(jobs), desc=desc, unit="run")
+        watch = QueueWatch() if self.name == "slurm" else None
         try:
             while pending:
                 finished = [j for j in pending if j.done()]
                 for sub in finished:
                     collect(self._outcome(sub, jobs[pending.pop(sub)]), results, bar)
-                if pending and not finished:
+                dead = watch.dead(list(pending)) if watch is not None and pending else {}
+                for sub, state in dead.items():
+                    job = jobs[pending.pop(sub)]
+                    collect((job.name, None, f"{job.name}: the job ended without a result (SLURM state {state}; "
+                                             f"log: {sub.paths.stderr})"), results, bar)
+                if pending and not finished and not dead:
                     time.sleep(self.settings.poll_s)
         except BaseException:
             for sub in pending:
@@ -144,7 +167,7 @@ class SubmititExecutor:
             raise
         finally:
             bar.close()
-        return [results[j.name] for j in jobs]
+        return in_order(results, jobs)
 
     @staticmethod
     def _outcome(sub: Any, job: Job) -> Outcome:
@@ -155,3 +178,45 @@ class SubmititExecutor:
             lines = [ln.strip() for ln in str(err).splitlines() if ln.strip()]
             last = lines[-1][:200] if lines else type(err).__name__
             return job.name, None, f"{job.name}: the job ended without a result ({last}; log: {sub.paths.stderr})"
+
+
+class QueueWatch:
+    """What SLURM's controller says of submitted jobs (``squeue``, no accounting needed): the jobs
+    that ended, or left the queue, :data:`DEAD_AFTER_S` ago or more and still have no result file."""
+
+    def __init__(self, dead_after_s: float | None = None, clock: Callable[[], float] = time.monotonic) -> None:
+        self.dead_after_s = DEAD_AFTER_S if dead_after_s is None else dead_after_s
+        self.clock = clock
+        self.ended_since: dict[str, float] = {}
+
+    @staticmethod
+    def states(job_ids: Sequence[str]) -> dict[str, str] | None:
+        """Each listed job's state (array tasks one per line: ``123_4``); ``None`` where squeue
+        cannot be asked (then nothing is judged dead)."""
+        try:
+            out = subprocess.run(["squeue", "--noheader", "--array", "--states=all", "--format=%i|%T",
+                                  "--jobs", ",".join(job_ids)], capture_output=True, text=True, timeout=60)
+        except (OSError, subprocess.SubprocessError):
+            return None
+        if out.returncode != 0 and "Invalid job id" not in out.stderr:
+            return None   # an id that left the controller's memory is "Invalid job id": none listed
+        listed = (ln.split("|", 1) for ln in out.stdout.splitlines() if "|" in ln)
+        return {jid.strip(): state.strip().split()[0] for jid, state in listed if state.strip()}
+
+    def dead(self, subs: Sequence[Any]) -> dict[Any, str]:
+        """The jobs of ``subs`` (submitit jobs) dead by the controller's word: ``{job: its state}``
+        (``gone`` for a job it no longer lists)."""
+        states = self.states([str(sub.job_id) for sub in subs])
+        if states is None:
+            return {}
+        now, dead = self.clock(), {}
+        for sub in subs:
+            jid = str(sub.job_id)
+            state = states.get(jid, "gone")
+            if state not in ENDED_STATES and state != "gone":
+                self.ended_since.pop(jid, None)
+                continue
+            since = self.ended_since.setdefault(jid, now)
+            if now - since >= self.dead_after_s and not sub.paths.result_pickle.exists():
+                dead[sub] = state
+        return dead
