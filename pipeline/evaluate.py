@@ -33,7 +33,6 @@ from compact_perception.learning.plan import PlannedRun, dataset_runs
 from compact_perception.execution.executor import chosen_executor, run_jobs
 from compact_perception.execution.jobs import Job, JobError
 from compact_perception.execution.settings import SettingsError
-from compact_perception.learning.training.memory import measure_in_subprocess
 from compact_perception.learning.training.parallel import stage_processes
 
 from ._common import stage, start, worker_logging
@@ -69,10 +68,9 @@ def main(argv: list[str] | None = None) -> None:
                                                *(r.paths for r in runs)]))
         floor = evaluate_floors(params, args.dataset, ".")
         jobs = [Job(r.name, r, cost=MODELS[r.model].epoch_cost) for r in runs]
-        # on CUDA under auto, as many runs per GPU as its memory holds by the costliest run's training
-        # step, measured (learning.training.memory): an evaluation takes less, so they fit
-        processes, on_gpu = stage_processes(params.train, partial(measure_in_subprocess, params,
-                                                                  max(runs, key=lambda r: r.cost)) if runs else None)
+        # no memory probe (it would train): an evaluation holds a network and one frame, so on CUDA
+        # under auto the count measured best for speed fits where the runs' training did
+        processes, on_gpu = stage_processes(params.train)
         run_jobs(partial(evaluate_one, params, floor=floor), jobs, processes, desc=f"evaluate {args.dataset}",
                  gpu=on_gpu, executor=executor)
     except (JobError, CacheError, RunError, SettingsError) as err:

@@ -30,7 +30,7 @@ from compact_perception.learning.plan import PlannedRun, dataset_runs, recipe_of
 from compact_perception.execution.executor import chosen_executor, run_jobs
 from compact_perception.execution.jobs import Job, JobError, RunAloneError
 from compact_perception.execution.settings import SettingsError
-from compact_perception.learning.training.memory import measure_in_subprocess
+from compact_perception.learning.training.memory_probe import measure_in_subprocess
 from compact_perception.learning.training.parallel import stage_processes
 from compact_perception.learning.training.train import finished_runs, run_seed, train_run
 from compact_perception.learning.weighting import weighting_settings
@@ -132,6 +132,16 @@ def other_run(params: Params, run: PlannedRun) -> str | None:
             "folder or this run's own")
 
 
+def check_weightings(params: Params, params_path: str) -> None:
+    """Every recipe's and study arm's weighting settings, before anything is written (one line
+    naming the key of ``params_path`` that is wrong)."""
+    compiled = params.train.compile
+    for m in params.model_ids:
+        weighting_settings(recipe_of(params, m, None), params_path, compiled=compiled)
+    for arm in params.study.arm_ids:
+        weighting_settings(recipe_of(params, params.study.base_model, arm), params_path, compiled=compiled)
+
+
 @stage
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__)
@@ -145,11 +155,7 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv)
     params = start(args.params, workers=("train.parallel_runs", "train.num_workers"), device=True)
     try:
-        compiled = params.train.compile
-        for m in params.model_ids:  # every recipe's and arm's weighting settings, before anything is written
-            weighting_settings(recipe_of(params, m, None), args.params, compiled=compiled)
-        for arm in params.study.arm_ids:
-            weighting_settings(recipe_of(params, params.study.base_model, arm), args.params, compiled=compiled)
+        check_weightings(params, args.params)
         runs = _selected(params, args)
         taken = other_run(params, runs[0]) if args.out is not None else None
         if taken:

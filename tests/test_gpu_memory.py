@@ -15,7 +15,7 @@ import torch
 from compact_perception.core.config import parse_params
 from compact_perception.execution.executor import run_jobs
 from compact_perception.execution.jobs import Failed, Job, JobError, RunAloneError, call
-from compact_perception.learning.training import memory, parallel
+from compact_perception.learning.training import memory, memory_probe, parallel
 
 from repo_params import repo_params_dict
 from run_fixture import run_in
@@ -100,7 +100,7 @@ def test_the_probe_is_measured_only_for_auto_on_cuda(on_stand_in_gpus, monkeypat
 def test_the_probe_measures_a_cuda_device_only():
     params = parse_params(repo_params_dict())
     with pytest.raises(RuntimeError, match="the memory probe measures a CUDA device"):
-        memory.measure_run_memory(params, None)
+        memory_probe.measure_run_memory(params, None)
 
 
 # ----------------------------------------------------------------------------- a run that runs out fails alone

@@ -6,10 +6,10 @@ best for speed on an 80-141 GB card). The per-process memory fraction
 allocator: every process also holds a CUDA context and the cuDNN and cuBLAS handles outside it, so
 on a 16-24 GB card twelve of them do not fit and the first run to run out ended the whole pool.
 
-So before a CUDA stage starts its workers, one process of its own (spawned, so the stage holds no
-CUDA context while the workers run) trains the stage's costliest run for :data:`PROBE_STEPS` steps
-on a real batch of its cache, exactly as the training loop builds it, and measures
-(:func:`measure_run_memory`):
+So before a CUDA train stage starts its workers, one process of its own (spawned, so the stage
+holds no CUDA context while the workers run) trains the stage's costliest run for two steps on a
+real batch of its cache, exactly as the training loop builds it, and measures (:mod:`.memory_probe`,
+apart from this module so that what only counts does not import the training loop):
 
 - the caching allocator's peak reserved memory (``torch.cuda.max_memory_reserved``);
 - what the steps took on the device outside the allocator (the drop of the device's free memory,
@@ -25,30 +25,21 @@ first). Nothing here changes a run's bytes: it decides how many run at once.
 """
 from __future__ import annotations
 
-import logging
-import multiprocessing as mp
 from dataclasses import dataclass
-from typing import Any
 
-log = logging.getLogger(__name__)
-
-__all__ = ["CUDA_CONTEXT_BYTES", "PROBE_STEPS", "RunMemory", "measure_in_subprocess", "measure_run_memory",
-           "runs_that_fit"]
+__all__ = ["CUDA_CONTEXT_BYTES", "RunMemory", "describe", "runs_that_fit"]
 
 #: Device memory one CUDA process holds for its context (module images, the primary context's own
 #: allocations) with PyTorch 2.x and CUDA 12's lazy module loading: 300-600 MiB on recent cards,
 #: taken at the top. ``mem_get_info`` cannot tell it apart from other processes' use, so it is stated.
 CUDA_CONTEXT_BYTES = 640 * 2**20
-#: Training steps of the probe: the first builds the cuDNN and cuBLAS handles and their
-#: workspaces, the next reuses the allocator's blocks; the peak is reached by the second.
-PROBE_STEPS = 2
 #: 1 MiB, for the log line.
 MIB = 2**20
 
 
 @dataclass(frozen=True)
 class RunMemory:
-    """One run's device memory, as :func:`measure_run_memory` measured it (bytes)."""
+    """One run's device memory, as :func:`.memory_probe.measure_run_memory` measured it (bytes)."""
 
     peak_bytes: int        # the caching allocator's peak reserved memory over the probe's steps
     outside_bytes: int     # taken on the device by the steps outside the allocator (library handles)
@@ -78,47 +69,3 @@ def describe(memory: RunMemory) -> str:
     return (f"one run measured at {memory.peak_bytes / MIB:.0f} MiB allocator peak + "
             f"{memory.outside_bytes / MIB:.0f} MiB outside it + {CUDA_CONTEXT_BYTES / MIB:.0f} MiB context, "
             f"{memory.available_bytes / MIB:.0f} of {memory.total_bytes / MIB:.0f} MiB free")
-
-
-def measure_run_memory(params: Any, run: Any, steps: int = PROBE_STEPS) -> RunMemory:
-    """In this process, on ``train.device`` (CUDA): ``steps`` training steps of the planned run
-    ``run`` as the training loop builds it (network, weighting, optimiser, precision, its cache's
-    first training batch), writing nothing; the memory they took (:class:`RunMemory`)."""
-    import torch
-
-    from ...core import catalog
-    from ...core.cache import read_meta
-    from ...core.determinism import resolve_device
-    from ...data.loader import make_loader
-    from . import distributed as ddp
-    from .epoch import train_step
-    from .state import RunSpec
-    from .train import _setup
-
-    device = resolve_device(params.train.device)
-    if device.type != "cuda":
-        raise RuntimeError(f"train.device {params.train.device!r}: the memory probe measures a CUDA device")
-    torch.cuda.init()
-    free0, total = torch.cuda.mem_get_info(device)
-    spec = RunSpec(params=params, planned=run, device=device, dist=ddp.Dist(), rng_seed=0, digest="memory-probe",
-                   per_rank_batch=params.train.batch_size,
-                   num_seg_classes=len(read_meta(run.paths.cache_dir)["seg_classes"]), progress=False)
-    state = _setup(spec)
-    state.model.train()
-    labelled = getattr(state.model, "labelled_maps", ())
-    loader = make_loader(run.paths.cache_dir, "train", catalog.MODELS[run.model].lidar_channels,
-                         params.train.batch_size, shuffle=False, labelled=labelled, pin_memory=True)
-    batch = next(iter(loader))
-    for step in range(steps):
-        train_step(state, batch, step, steps)
-    torch.cuda.synchronize(device)
-    free1, _ = torch.cuda.mem_get_info(device)
-    reserved = torch.cuda.memory_reserved(device)
-    return RunMemory(peak_bytes=int(torch.cuda.max_memory_reserved(device)),
-                     outside_bytes=max(0, int(free0 - free1 - reserved)), free_bytes=int(free0), total_bytes=int(total))
-
-
-def measure_in_subprocess(params: Any, run: Any) -> RunMemory:
-    """:func:`measure_run_memory` in a spawned process of its own, which exits with its CUDA context."""
-    with mp.get_context("spawn").Pool(1) as pool:
-        return pool.apply(measure_run_memory, (params, run))

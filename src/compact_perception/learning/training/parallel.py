@@ -53,7 +53,7 @@ def runs_side_by_side(parallel_runs: int | str, device_type: str, num_threads: i
 def stage_processes(train: Any, probe: Optional[Callable[[], Any]] = None) -> tuple[int, bool]:
     """``(processes, on a CUDA GPU)`` of a stage that runs its runs on ``train.device``, with
     ``train.parallel_runs`` and ``train.num_threads`` (:func:`runs_side_by_side`). ``probe``: what
-    measures one run's device memory (:func:`~.memory.measure_in_subprocess` bound to the stage's
+    measures one run's device memory (:func:`~.memory_probe.measure_in_subprocess` bound to the stage's
     costliest run, returning a :class:`~.memory.RunMemory`), called only for ``auto`` on CUDA; a
     probe that runs out of memory itself leaves one run per GPU."""
     from ...core.determinism import resolve_device
