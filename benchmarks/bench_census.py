@@ -63,8 +63,9 @@ def runs() -> list[tuple[str, str | None]]:
 
 def build(params, model: str, arm: str | None, device: torch.device, cache: Path, out: Path):
     planned = planned_run(params, "A", model, 0, arm).moved(cache_dir=cache, run_dir=out)
-    spec = RunSpec(params, planned, device, ddp.Dist(), 0, "census", params.train.batch_size,
-                   len(read_meta(cache)["seg_classes"]), progress=False)
+    spec = RunSpec(params=params, planned=planned, device=device, dist=ddp.Dist(), rng_seed=0, digest="census",
+                   per_rank_batch=params.train.batch_size, num_seg_classes=len(read_meta(cache)["seg_classes"]),
+                   progress=False)
     run = _setup(spec)
     run.model.train()
     return run

@@ -131,8 +131,9 @@ def build_run(params, model_id: str, device: torch.device, cache: Path, out: Pat
     from compact_perception.core.cache import read_meta
 
     planned = planned_run(params, "A", model_id, 0, arm).moved(cache_dir=cache, run_dir=out)
-    spec = RunSpec(params, planned, device, dist or ddp.Dist(), 0, "gpu-check", params.train.batch_size,
-                   len(read_meta(cache)["seg_classes"]), progress=False)
+    spec = RunSpec(params=params, planned=planned, device=device, dist=dist or ddp.Dist(), rng_seed=0,
+                   digest="gpu-check", per_rank_batch=params.train.batch_size,
+                   num_seg_classes=len(read_meta(cache)["seg_classes"]), progress=False)
     run = _setup(spec)
     run.model.train()
     return run

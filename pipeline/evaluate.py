@@ -26,7 +26,7 @@ from compact_perception.core.catalog import MODELS, dataset_ids
 from compact_perception.core import io
 from compact_perception.core.config import Params
 from compact_perception.core.errors import RunError, os_error_line
-from compact_perception.core.layout import evaluation_folders, floor_paths
+from compact_perception.core.layout import cache_dir, evaluation_folders, floor_paths
 from compact_perception.evaluation.evaluate import check_best, evaluate_floors, evaluate_run, read_best
 from compact_perception.evaluation.floor import TRIVIAL
 from compact_perception.learning.plan import PlannedRun, dataset_runs
@@ -52,7 +52,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--params", default="params.yaml")
     args = ap.parse_args(argv)
     params = start(args.params, workers=("train.parallel_runs",), device=True)
-    cache = Path("data/cache") / args.dataset
+    cache = cache_dir(args.dataset)
     try:  # bad input (a truncated cache, no checkpoint, a read-only results/): one line naming the file,
         executor = chosen_executor()               # exit 1, before any write
         runs = dataset_runs(params, args.dataset)

@@ -12,6 +12,7 @@ from pathlib import Path
 from compact_perception.core.cache import CacheError
 from compact_perception.core.catalog import sim_dataset_ids
 from compact_perception.core.errors import RecordError, os_error_line
+from compact_perception.core.layout import CACHE_ROOT
 from compact_perception.data.preprocess import preprocess_dataset
 
 from ._common import stage, start
@@ -23,7 +24,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--dataset", required=True, choices=sim_dataset_ids())
     ap.add_argument("--params", default="params.yaml")
     ap.add_argument("--raw-root", default="data/raw")
-    ap.add_argument("--cache-root", default="data/cache")
+    ap.add_argument("--cache-root", default=str(CACHE_ROOT))
     ap.add_argument("--figures", default="reports/figures")
     args = ap.parse_args(argv)
     params = start(args.params, workers=("preprocess.workers",))

@@ -102,8 +102,9 @@ def _tiny(params_dict: dict, precision: str):
 def _run(params, model: str, arm, cache, out):
     from compact_perception.core.cache import read_meta
 
-    spec = RunSpec(params, run_in(params, model, cache, out, arm=arm), torch.device("cpu"), ddp.Dist(), 0, "test",
-                   params.train.batch_size, len(read_meta(cache)["seg_classes"]), progress=False)
+    spec = RunSpec(params=params, planned=run_in(params, model, cache, out, arm=arm), device=torch.device("cpu"),
+                   dist=ddp.Dist(), rng_seed=0, digest="test", per_rank_batch=params.train.batch_size,
+                   num_seg_classes=len(read_meta(cache)["seg_classes"]), progress=False)
     run = train_mod._setup(spec)
     run.model.train()
     loader = make_loader(cache, "train", catalog.MODELS[model].lidar_channels, params.train.batch_size, shuffle=False,

@@ -51,8 +51,9 @@ def build(params, model: str, cache: Path, out: Path, arm: str | None = None, di
     """A run as the training loop's setup step builds it."""
     from compact_perception.core.cache import read_meta
 
-    spec = RunSpec(params, run_in(params, model, cache, out, arm=arm), torch.device("cpu"), dist or ddp.Dist(), 0,
-                   "test", params.train.batch_size, len(read_meta(cache)["seg_classes"]), progress=False)
+    spec = RunSpec(params=params, planned=run_in(params, model, cache, out, arm=arm), device=torch.device("cpu"),
+                   dist=dist or ddp.Dist(), rng_seed=0, digest="test", per_rank_batch=params.train.batch_size,
+                   num_seg_classes=len(read_meta(cache)["seg_classes"]), progress=False)
     run = train_mod._setup(spec)
     run.model.train()
     return run

@@ -178,7 +178,7 @@ FINGERPRINTED = {
         "registry", "scores")),
     "compact_perception/__init__.py", "compact_perception/data/__init__.py", "compact_perception/data/loader.py",
     *(f"compact_perception/learning/{m}.py" for m in (
-        "__init__", "losses", "metrics", "onnx_export", "plan", "schedule")),
+        "__init__", "losses", "metrics", "onnx_export", "plan", "schedule", "views")),
     *(f"compact_perception/learning/models/{m}.py" for m in (
         "__init__", "base", "blocks", "chen", "compact", "polarnet", "segnet")),
     *(f"compact_perception/learning/training/{m}.py" for m in (

@@ -76,9 +76,13 @@ def _paths(dataset: str, model: str, seed: int, root: Path | str, tail: Path) ->
                     root / "data" / "eval" / tail, cache_dir(dataset, root))
 
 
+#: Where the datasets' caches live, relative to the repository root (what preprocessing writes).
+CACHE_ROOT = Path("data") / "cache"
+
+
 def cache_dir(dataset: str, root: Path | str = ".") -> Path:
     """The cache of ``dataset`` under ``root``: ``data/cache/<ds>/`` (what preprocessing writes)."""
-    return Path(root) / "data" / "cache" / dataset
+    return Path(root) / CACHE_ROOT / dataset
 
 
 def run_paths(dataset: str, model: str, seed: int, root: Path | str = ".") -> RunPaths:

@@ -33,6 +33,7 @@ import numpy as np
 from tqdm import tqdm
 
 from ..core.cache import write_cache
+from ..core.layout import CACHE_ROOT
 from ..core.classes import CARLA_PALETTE, palette_to_index
 from ..core.config import Params, PreprocessParams
 from ..core.machine import bounded
@@ -133,7 +134,7 @@ def preprocess_dataset(
     params: Params,
     dataset_id: str,
     raw_root: str | os.PathLike = "data/raw",
-    cache_root: str | os.PathLike = "data/cache",
+    cache_root: str | os.PathLike = CACHE_ROOT,
     figure_path: str | os.PathLike | None = None,
 ) -> Path:
     """Preprocess dataset A/B/C as its source says (:mod:`compact_perception.data.sources`: the raw

@@ -22,6 +22,8 @@ import torch
 from torch import Tensor
 import torch.nn.functional as F
 
+from .views import as_views, class_dim
+
 __all__ = [
     "huber_loss",
     "de_loss_factor",
@@ -32,24 +34,6 @@ __all__ = [
     "squared_loss",
     "kl_normal",
 ]
-
-
-def as_views(x: Tensor) -> Tensor:
-    """(B,C,H,W) -> (B,1,C,H,W); (B,V,C,H,W) unchanged."""
-    if x.dim() == 4:
-        return x.unsqueeze(1)
-    if x.dim() == 5:
-        return x
-    raise ValueError(f"expected a (B,C,H,W) or (B,V,C,H,W) tensor, got shape {tuple(x.shape)}")
-
-
-def _class_dim(x: Tensor) -> int:
-    """Channel (class) axis: 1 for (B,C,H,W), 2 for (B,V,C,H,W)."""
-    if x.dim() == 4:
-        return 1
-    if x.dim() == 5:
-        return 2
-    raise ValueError(f"expected a (B,C,H,W) or (B,V,C,H,W) tensor, got shape {tuple(x.shape)}")
 
 
 def huber_loss(pred: Tensor, target: Tensor, delta: float = 0.5) -> Tensor:
@@ -117,7 +101,7 @@ def cross_entropy_onehot(logits: Tensor, target_onehot: Tensor, labelled: Tensor
     on the host (:class:`compact_perception.data.loader.Labelled`): the same gather, sum and mean as the
     boolean mask, without reading the device (the mask's ``nonzero`` and the count's test do).
     """
-    dim = _class_dim(logits)
+    dim = class_dim(logits)
     y = target_onehot.to(logits.dtype)
     logp = F.log_softmax(logits, dim=dim)
     per_pixel = -(y * logp).sum(dim=dim)
@@ -162,7 +146,7 @@ def lovasz_softmax(probs: Tensor, target_onehot: Tensor, labelled: Tensor | None
     them, found on the host (:class:`compact_perception.data.loader.Labelled`): the same computation
     without a host read of the device (the mask's ``nonzero`` and each class's presence test).
     """
-    dim = _class_dim(probs)
+    dim = class_dim(probs)
     c = probs.shape[dim]
     p = probs.movedim(dim, -1).reshape(-1, c)
     y = target_onehot.to(probs.dtype).movedim(dim, -1).reshape(-1, c)

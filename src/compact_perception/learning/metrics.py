@@ -58,7 +58,7 @@ from ..core.catalog import ARGMAX_TASKS, CLASS_MAP_TASKS, score_terms, scores_fr
 from ..core.scores import metric_variance, total_metric
 from ..core.depth import DEPTH_FAR_M, DEPTH_LOG_K, DEPTH_NEAR_M
 from ..core.depth_metrics import DEPTH_CONVENTION, DEPTH_METRICS, DepthMetric
-from .losses import as_views
+from .views import as_views
 
 __all__ = [
     "mae",

@@ -26,9 +26,10 @@ from ..schedule import EarlyStop, Plateau
 __all__ = ["RunSpec", "RunState"]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class RunSpec:
-    """What one run is (the planned run, the params) and how this process runs it."""
+    """What one run is (the planned run, the params) and how this process runs it (built by
+    keyword only: its fields are read by name everywhere)."""
 
     params: Params
     planned: PlannedRun

@@ -250,7 +250,7 @@ def train_run(params: Params, run: PlannedRun, *, stop_after_epochs: int | None 
     set_threads(tp.num_threads)
     rng_seed = run_seed(params, run.dataset, run.seed)
     digest = run_digest(params, run, rng_seed, cache_fingerprint(run.paths.cache_dir), dist_.world_size)
-    spec = RunSpec(params, run, device, dist_, rng_seed=rng_seed, digest=digest, per_rank_batch=per_rank_batch,
+    spec = RunSpec(params=params, planned=run, device=device, dist=dist_, rng_seed=rng_seed, digest=digest, per_rank_batch=per_rank_batch,
                    num_seg_classes=len(meta["seg_classes"]), dtype=dtype, stop_after_epochs=stop_after_epochs,
                    progress=progress)
     try:
