@@ -50,6 +50,8 @@ log = logging.getLogger("pipeline.train_all")
 
 #: The DVC stages that train, one per dataset (dvc.yaml's ``train`` matrix).
 TRAIN_STAGE = "train@{}"
+#: The params file the stages read (dvc.yaml's default): the runs planned here are theirs.
+PARAMS = "params.yaml"
 
 
 def upstream_stages(repo, datasets: list[str]) -> list[str]:
@@ -71,7 +73,7 @@ def _dvc(*args: str) -> None:
         raise RunError(f"dvc {' '.join(args)}: failed (its output above)")
 
 
-def train_everything(params, params_path: str, repo) -> int:
+def train_everything(params, repo) -> int:
     """Step 2: every dataset's unfinished runs as one submission, under DVC's repository lock;
     the number of runs handed out."""
     from dvc.lock import LockError
@@ -98,23 +100,27 @@ def train_everything(params, params_path: str, repo) -> int:
 @stage
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--params", default="params.yaml")
     ap.add_argument("--no-repro", action="store_true", help="submit and wait only; a later dvc repro finds the runs done")
     args = ap.parse_args(argv)
-    params = start(args.params, workers=("train.parallel_runs", "train.num_workers"), device=True)
-    try:
-        from dvc.repo import Repo
+    params = start(PARAMS, workers=("train.parallel_runs", "train.num_workers"), device=True)  # DVC's params file
+    from dvc.exceptions import DvcException, NotDvcRepoError
+    from dvc.repo import Repo
 
-        check_weightings(params, args.params)
+    try:
+        check_weightings(params, PARAMS)
         chosen_executor()  # a bad executor setting, before any stage runs
         with Repo(".") as repo:
             _dvc("repro", *upstream_stages(repo, list(params.dataset_ids)))
-            handed = train_everything(params, args.params, repo)
+            handed = train_everything(params, repo)
         log.info("%d runs trained in one submission", handed)
         if not args.no_repro:
             _dvc("repro")
     except (JobError, RunError, CacheError, ParamsError, SettingsError) as err:
         sys.exit(f"error: {err}")
+    except NotDvcRepoError:
+        sys.exit(f"error: {Path.cwd()}: not a DVC repository; run this from the project's root")
+    except DvcException as err:
+        sys.exit(f"error: dvc: {' '.join(str(err).split())[:300]}")
     except OSError as err:
         sys.exit(f"error: {os_error_line(err, Path('runs'))}")
 

@@ -59,3 +59,14 @@ def test_every_datasets_runs_go_in_one_submission_and_dvc_repro_then_trains_noth
     assert snapshot(repo, "runs") == before                      # not a byte, inode or mtime changed
     status = subprocess.run([sys.executable, "-m", "dvc", "status", "-q", *trains], cwd=repo, env=env)
     assert status.returncode == 0                                 # DVC records them up to date
+
+
+def test_outside_a_dvc_repository_it_is_one_line_and_runs_nothing(tmp_path):
+    (tmp_path / "params.yaml").write_bytes((ROOT / "params.yaml").read_bytes())
+    env = {"PYTHONPATH": f"{ROOT / 'src'}:{ROOT}", "PATH": "/usr/bin:/bin", "DVC_NO_ANALYTICS": "1",
+           "HOME": str(tmp_path)}
+    proc = subprocess.run([sys.executable, "-m", "pipeline.train_all"], cwd=tmp_path, env=env, capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr
+    assert f"error: {tmp_path}: not a DVC repository; run this from the project's root\n" in proc.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["params.yaml"]
