@@ -142,6 +142,20 @@ def check_weightings(params: Params, params_path: str) -> None:
         weighting_settings(recipe_of(params, params.study.base_model, arm), params_path, compiled=compiled)
 
 
+def train_todo(params: Params, todo: list[PlannedRun], desc: str, executor, *, alone: bool = False) -> list[dict]:
+    """The unfinished runs ``todo`` through ``executor``, longest first, their stopping facts in order
+    (the train stage's and ``pipeline.train_all``'s one way to hand runs out). ``train.parallel_runs``
+    workers; on CUDA under ``auto``, as many per GPU as the costliest run's measured memory allows
+    (measured only where there are runs to share the GPU). ``alone``: one run, in this process, with a
+    per-step bar."""
+    probe = partial(measure_in_subprocess, params, max(todo, key=lambda r: r.cost)) if todo and not alone else None
+    processes, on_gpu = stage_processes(params.train, probe)
+    if not todo:
+        return []
+    return run_jobs(partial(train_one, params, progress=alone), [Job(r.name, r, cost=r.cost) for r in todo],
+                    1 if alone else processes, desc=desc, gpu=on_gpu, executor=executor)
+
+
 @stage
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__)
@@ -163,13 +177,7 @@ def main(argv: list[str] | None = None) -> None:
         executor = chosen_executor()
         finished = finished_runs(params, runs, int(os.environ.get("WORLD_SIZE", "1")))
         todo = [r for r in runs if r.name not in finished]
-        alone = len(runs) == 1
-        # on CUDA under auto, as many runs per GPU as its memory holds by the costliest run, measured
-        processes, on_gpu = stage_processes(params.train, partial(measure_in_subprocess, params,
-                                                                  max(todo, key=lambda r: r.cost)) if todo else None)
-        trained = run_jobs(partial(train_one, params, progress=alone), [Job(r.name, r, cost=r.cost) for r in todo],
-                           1 if alone else processes, desc=f"train {args.dataset}", gpu=on_gpu,
-                           executor=executor) if todo else []
+        trained = train_todo(params, todo, f"train {args.dataset}", executor, alone=len(runs) == 1)
         done = {**{n: _facts(s) for n, s in finished.items()}, **dict(zip((r.name for r in todo), trained))}
     except (JobError, RunError, CacheError, ParamsError, SettingsError) as err:
         sys.exit(f"error: {err}")

@@ -29,22 +29,19 @@ import argparse
 import logging
 import subprocess
 import sys
-from functools import partial
 from pathlib import Path
 
 from compact_perception.core.cache import CacheError
 from compact_perception.core.config import ParamsError
 from compact_perception.core.errors import RunError, os_error_line
-from compact_perception.execution.executor import chosen_executor, run_jobs
-from compact_perception.execution.jobs import Job, JobError
+from compact_perception.execution.executor import chosen_executor
+from compact_perception.execution.jobs import JobError
 from compact_perception.execution.settings import SettingsError
 from compact_perception.learning.plan import dataset_runs
-from compact_perception.learning.training.memory_probe import measure_in_subprocess
-from compact_perception.learning.training.parallel import stage_processes
 from compact_perception.learning.training.train import finished_runs
 
 from ._common import stage, start
-from .train import check_weightings, train_one
+from .train import check_weightings, train_todo
 
 log = logging.getLogger("pipeline.train_all")
 
@@ -86,11 +83,7 @@ def train_everything(params, repo) -> int:
             log.info("%d runs of %d datasets: %d complete, %d to train", len(runs), len(params.dataset_ids),
                      len(finished), len(todo))
             if todo:
-                executor = chosen_executor()
-                processes, on_gpu = stage_processes(params.train, partial(measure_in_subprocess, params,
-                                                                          max(todo, key=lambda r: r.cost)))
-                run_jobs(partial(train_one, params, progress=False), [Job(r.name, r, cost=r.cost) for r in todo],
-                         processes, desc="train all", gpu=on_gpu, executor=executor)
+                train_todo(params, todo, "train all", chosen_executor())
     except LockError:
         raise RunError(f"{repo.lock.lockfile}: another dvc command holds this checkout's lock; "
                        "run this when it has ended") from None

@@ -156,9 +156,7 @@ class SubmititExecutor:
                     collect(self._outcome(sub, jobs[pending.pop(sub)]), results, bar)
                 dead = watch.dead(list(pending)) if watch is not None and pending else {}
                 for sub, state in dead.items():
-                    job = jobs[pending.pop(sub)]
-                    collect((job.name, None, f"{job.name}: the job ended without a result (SLURM state {state}; "
-                                             f"log: {sub.paths.stderr})"), results, bar)
+                    collect(_no_result(jobs[pending.pop(sub)], f"SLURM state {state}", sub), results, bar)
                 if pending and not finished and not dead:
                     time.sleep(self.settings.poll_s)
         except BaseException:
@@ -176,8 +174,12 @@ class SubmititExecutor:
             return sub.result()
         except Exception as err:  # noqa: BLE001 - submitit's FailedJobError / UncompletedJobError
             lines = [ln.strip() for ln in str(err).splitlines() if ln.strip()]
-            last = lines[-1][:200] if lines else type(err).__name__
-            return job.name, None, f"{job.name}: the job ended without a result ({last}; log: {sub.paths.stderr})"
+            return _no_result(job, lines[-1][:200] if lines else type(err).__name__, sub)
+
+
+def _no_result(job: Job, why: str, sub: Any) -> Outcome:
+    """The outcome of a job that ended without a result: why, and the job's log."""
+    return job.name, None, f"{job.name}: the job ended without a result ({why}; log: {sub.paths.stderr})"
 
 
 class QueueWatch:
