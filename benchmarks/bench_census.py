@@ -38,16 +38,13 @@ sys.path.insert(0, str(ROOT / "tests"))  # synthetic.py: the synthetic cache wri
 import torch  # noqa: E402
 
 from compact_perception.core import catalog  # noqa: E402
-from compact_perception.core.cache import read_meta  # noqa: E402
 from compact_perception.core.config import load_params  # noqa: E402
 from compact_perception.data.loader import make_loader  # noqa: E402
 from compact_perception.learning.plan import planned_run  # noqa: E402
-from compact_perception.learning.training import distributed as ddp  # noqa: E402
 from compact_perception.learning.training.capture import capture_blocker  # noqa: E402
 from compact_perception.learning.training.census import Census, optimizer_step_counters  # noqa: E402
 from compact_perception.learning.training.epoch import epoch_means, train_step  # noqa: E402
-from compact_perception.learning.training.state import RunSpec  # noqa: E402
-from compact_perception.learning.training.train import _setup  # noqa: E402
+from compact_perception.learning.training.standalone import standalone_run  # noqa: E402
 
 sys.path.insert(0, str(ROOT / "benchmarks"))
 from flags import MAX_BATCH, MAX_WORKERS, Parser, count, frame_size  # noqa: E402
@@ -63,12 +60,7 @@ def runs() -> list[tuple[str, str | None]]:
 
 def build(params, model: str, arm: str | None, device: torch.device, cache: Path, out: Path):
     planned = planned_run(params, "A", model, 0, arm).moved(cache_dir=cache, run_dir=out)
-    spec = RunSpec(params=params, planned=planned, device=device, dist=ddp.Dist(), rng_seed=0, digest="census",
-                   per_rank_batch=params.train.batch_size, num_seg_classes=len(read_meta(cache)["seg_classes"]),
-                   progress=False)
-    run = _setup(spec)
-    run.model.train()
-    return run
+    return standalone_run(params, planned, device, digest="census")
 
 
 def census_of(run, batch: dict, steps: int) -> list[Census]:

@@ -64,8 +64,7 @@ from compact_perception.learning.training.capture import (CapturedStep, Uncaptur
 from compact_perception.learning.training.epoch import epoch_means, train_step  # noqa: E402
 from compact_perception.learning.training.precision import cpu_has_native_bf16  # noqa: E402
 from compact_perception.learning.plan import planned_run  # noqa: E402
-from compact_perception.learning.training.state import RunSpec  # noqa: E402
-from compact_perception.learning.training.train import _setup  # noqa: E402  (the loop's own setup step)
+from compact_perception.learning.training.standalone import standalone_run  # noqa: E402
 
 PRECISIONS = ("fp32", "bf16", "fp16")
 SKIP_CUDA = "skipped: needs CUDA"
@@ -128,15 +127,8 @@ def build_run(params, model_id: str, device: torch.device, cache: Path, out: Pat
               arm: str | None = None):
     """A run as the training loop builds it (train._setup): model, weighting, optimiser, scaler;
     ``arm``: a study arm's recipe on the model's network."""
-    from compact_perception.core.cache import read_meta
-
     planned = planned_run(params, "A", model_id, 0, arm).moved(cache_dir=cache, run_dir=out)
-    spec = RunSpec(params=params, planned=planned, device=device, dist=dist or ddp.Dist(), rng_seed=0,
-                   digest="gpu-check", per_rank_batch=params.train.batch_size,
-                   num_seg_classes=len(read_meta(cache)["seg_classes"]), progress=False)
-    run = _setup(spec)
-    run.model.train()
-    return run
+    return standalone_run(params, planned, device, digest="gpu-check", dist=dist)
 
 
 def one_batch(cache: Path, model_id: str, batch: int, device: torch.device | None = None, run=None) -> dict:

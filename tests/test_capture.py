@@ -16,11 +16,10 @@ from compact_perception.core.config import ParamsError, parse_params
 from compact_perception.core.plateau_record import NEUTRAL_KEYS
 from compact_perception.data.loader import make_loader
 from compact_perception.learning.training import distributed as ddp
-from compact_perception.learning.training import train as train_mod
 from compact_perception.learning.training.capture import (CapturedStep, Uncaptured, capture_blocker,
                                                           captured_step)
 from compact_perception.learning.training.epoch import epoch_means, train_step
-from compact_perception.learning.training.state import RunSpec
+from compact_perception.learning.training.standalone import standalone_run
 
 from repo_params import cap_epochs
 from run_fixture import nudged_replay, run_in
@@ -36,13 +35,7 @@ def _params(params_dict: dict, precision: str = "fp32", **train):
 
 
 def _run(params, model, arm, cache, out):
-    from compact_perception.core.cache import read_meta
-
-    spec = RunSpec(params=params, planned=run_in(params, model, cache, out, arm=arm), device=torch.device("cpu"),
-                   dist=ddp.Dist(), rng_seed=0, digest="test", per_rank_batch=params.train.batch_size,
-                   num_seg_classes=len(read_meta(cache)["seg_classes"]), progress=False)
-    run = train_mod._setup(spec)
-    run.model.train()
+    run = standalone_run(params, run_in(params, model, cache, out, arm=arm), torch.device("cpu"), digest="test")
     loader = make_loader(cache, "train", catalog.MODELS[model].lidar_channels, BATCH, shuffle=False, drop_last=True,
                          labelled=getattr(run.model, "labelled_maps", ()))
     return run, [b for b in loader]

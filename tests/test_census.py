@@ -73,10 +73,8 @@ from compact_perception.core.config import parse_params  # noqa: E402
 from compact_perception.core.errors import NonFinite  # noqa: E402
 from compact_perception.data.loader import make_loader  # noqa: E402
 from compact_perception.learning.plan import recipe_of  # noqa: E402
-from compact_perception.learning.training import distributed as ddp  # noqa: E402
-from compact_perception.learning.training import train as train_mod  # noqa: E402
 from compact_perception.learning.training.epoch import EpochSums, epoch_means, train_step  # noqa: E402
-from compact_perception.learning.training.state import RunSpec  # noqa: E402
+from compact_perception.learning.training.standalone import standalone_run  # noqa: E402
 from compact_perception.learning.weighting import WEIGHTINGS  # noqa: E402
 
 from repo_params import cap_epochs  # noqa: E402
@@ -100,13 +98,7 @@ def _tiny(params_dict: dict, precision: str):
 
 
 def _run(params, model: str, arm, cache, out):
-    from compact_perception.core.cache import read_meta
-
-    spec = RunSpec(params=params, planned=run_in(params, model, cache, out, arm=arm), device=torch.device("cpu"),
-                   dist=ddp.Dist(), rng_seed=0, digest="test", per_rank_batch=params.train.batch_size,
-                   num_seg_classes=len(read_meta(cache)["seg_classes"]), progress=False)
-    run = train_mod._setup(spec)
-    run.model.train()
+    run = standalone_run(params, run_in(params, model, cache, out, arm=arm), torch.device("cpu"), digest="test")
     loader = make_loader(cache, "train", catalog.MODELS[model].lidar_channels, params.train.batch_size, shuffle=False,
                          labelled=getattr(run.model, "labelled_maps", ()))  # as the training loop's loader
     return run, next(iter(loader))

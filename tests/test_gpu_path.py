@@ -31,7 +31,7 @@ from compact_perception.learning.plan import recipe_of
 from compact_perception.learning.training import distributed as ddp
 from compact_perception.learning.training import train as train_mod
 from compact_perception.learning.training.epoch import NonFinite, train_step
-from compact_perception.learning.training.state import RunSpec
+from compact_perception.learning.training.standalone import standalone_run
 from compact_perception.learning.weighting import WEIGHTINGS, MGNWeighting, GradNormWeighting, weighting_settings
 
 from repo_params import cap_epochs
@@ -49,14 +49,8 @@ def tiny(params_dict: dict, precision: str = "fp32", epochs: int = 2, batch: int
 
 def build(params, model: str, cache: Path, out: Path, arm: str | None = None, dist: ddp.Dist | None = None):
     """A run as the training loop's setup step builds it."""
-    from compact_perception.core.cache import read_meta
-
-    spec = RunSpec(params=params, planned=run_in(params, model, cache, out, arm=arm), device=torch.device("cpu"),
-                   dist=dist or ddp.Dist(), rng_seed=0, digest="test", per_rank_batch=params.train.batch_size,
-                   num_seg_classes=len(read_meta(cache)["seg_classes"]), progress=False)
-    run = train_mod._setup(spec)
-    run.model.train()
-    return run
+    return standalone_run(params, run_in(params, model, cache, out, arm=arm), torch.device("cpu"), digest="test",
+                          dist=dist)
 
 
 def batch_of(cache: Path, model: str, n: int) -> dict:

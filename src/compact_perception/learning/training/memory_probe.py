@@ -23,24 +23,17 @@ def measure_run_memory(params: Any, run: Any, steps: int = PROBE_STEPS) -> RunMe
     import torch
 
     from ...core import catalog
-    from ...core.cache import read_meta
     from ...core.determinism import resolve_device
     from ...data.loader import make_loader
-    from . import distributed as ddp
     from .epoch import train_step
-    from .state import RunSpec
-    from .train import _setup
+    from .standalone import standalone_run
 
     device = resolve_device(params.train.device)
     if device.type != "cuda":
         raise RuntimeError(f"train.device {params.train.device!r}: the memory probe measures a CUDA device")
     torch.cuda.init()
     free0, total = torch.cuda.mem_get_info(device)
-    spec = RunSpec(params=params, planned=run, device=device, dist=ddp.Dist(), rng_seed=0, digest="memory-probe",
-                   per_rank_batch=params.train.batch_size,
-                   num_seg_classes=len(read_meta(run.paths.cache_dir)["seg_classes"]), progress=False)
-    state = _setup(spec)
-    state.model.train()
+    state = standalone_run(params, run, device, digest="memory-probe")
     labelled = getattr(state.model, "labelled_maps", ())
     loader = make_loader(run.paths.cache_dir, "train", catalog.MODELS[run.model].lidar_channels,
                          params.train.batch_size, shuffle=False, labelled=labelled, pin_memory=True)
