@@ -38,7 +38,7 @@ sys.path.insert(0, str(ROOT / "tests"))  # synthetic.py: the synthetic cache wri
 import torch  # noqa: E402
 
 from compact_perception.core import catalog  # noqa: E402
-from compact_perception.core.config import load_params  # noqa: E402
+from compact_perception.core.params import load_params  # noqa: E402
 from compact_perception.data.loader import make_loader  # noqa: E402
 from compact_perception.learning.plan import planned_run  # noqa: E402
 from compact_perception.learning.training.capture import capture_blocker  # noqa: E402

@@ -36,7 +36,7 @@ from typing import Any
 import torch
 
 from compact_perception.core.catalog import dataset_ids, model_ids
-from compact_perception.core.config import load_params
+from compact_perception.core.params import load_params
 from compact_perception.learning.models import build_model
 from compact_perception.learning.training.precision import (autocast_context, batch_to_channels_last, cpu_has_native_bf16,
                                           float_outputs, make_grad_scaler, maybe_compile, resolve_precision,

@@ -25,7 +25,7 @@ from pathlib import Path
 import torch
 
 from compact_perception.core.catalog import dataset_ids, model_ids
-from compact_perception.core.config import load_params
+from compact_perception.core.params import load_params
 from compact_perception.core.determinism import apply_policy
 from compact_perception.learning.models import DATASET_SPECS, build_model
 from compact_perception.learning.training.precision import cpu_has_native_bf16

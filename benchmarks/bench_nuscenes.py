@@ -31,7 +31,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from compact_perception.core.config import load_params
+from compact_perception.core.params import load_params
 from compact_perception.data.nuscenes.export import export_nuscenes_sim
 from compact_perception.data.nuscenes.ingest import ingest_nuscenes, ingest_sample, load_nuscenes, plan_ingestion
 

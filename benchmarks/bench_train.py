@@ -17,7 +17,7 @@ from pathlib import Path
 import torch
 
 from compact_perception.core.catalog import dataset_ids, model_ids
-from compact_perception.core.config import load_params
+from compact_perception.core.params import load_params
 from compact_perception.learning.models import build_model
 from compact_perception.learning.weighting import build_weighting
 

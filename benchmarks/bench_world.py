@@ -10,7 +10,7 @@ import sys
 import time
 from pathlib import Path
 
-from compact_perception.core.config import TOWNS, load_params
+from compact_perception.core.params import TOWNS, load_params
 from compact_perception.data.world.generate import render_episode
 from compact_perception.data.world.town import build_town
 

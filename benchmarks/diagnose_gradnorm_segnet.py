@@ -34,7 +34,7 @@ from pathlib import Path
 import torch
 
 from compact_perception.core.catalog import dataset_ids
-from compact_perception.core.config import Scaled, load_params
+from compact_perception.core.params import Scaled, load_params
 from compact_perception.data.loader import make_loader, to_device
 from compact_perception.core.determinism import set_threads
 from compact_perception.learning.metrics import class_confusion, class_iou, compute_metrics_per_sample, mean_iou

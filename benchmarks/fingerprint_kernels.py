@@ -54,7 +54,7 @@ import torch  # noqa: E402
 from torch import Tensor, nn  # noqa: E402
 
 from compact_perception.core.catalog import dataset_ids, model_ids  # noqa: E402
-from compact_perception.core.config import load_params  # noqa: E402
+from compact_perception.core.params import load_params  # noqa: E402
 from compact_perception.core.determinism import set_threads  # noqa: E402
 from compact_perception.core.machine import cpu_name  # noqa: E402
 from compact_perception.data.loader import make_loader, to_device  # noqa: E402

@@ -56,7 +56,7 @@ import torch  # noqa: E402
 import yaml  # noqa: E402
 
 from compact_perception.core import catalog  # noqa: E402
-from compact_perception.core.config import load_params  # noqa: E402
+from compact_perception.core.params import load_params  # noqa: E402
 from compact_perception.data.loader import make_loader  # noqa: E402
 from compact_perception.learning.training import distributed as ddp  # noqa: E402
 from compact_perception.learning.training.capture import (CapturedStep, Uncaptured, capture_blocker,  # noqa: E402
@@ -238,7 +238,7 @@ INTERRUPTED_RUN = textwrap.dedent("""
     import sys
     from pathlib import Path
     import pipeline  # noqa: F401  the stage package's numeric pins, as the resuming stage has them
-    from compact_perception.core.config import load_params
+    from compact_perception.core.params import load_params
     from compact_perception.learning.plan import planned_run
     from compact_perception.learning.training.train import train_run
     params = load_params(sys.argv[1])

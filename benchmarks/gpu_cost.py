@@ -31,7 +31,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from flags import Parser, count  # noqa: E402
 
 from compact_perception.core import catalog  # noqa: E402
-from compact_perception.core.config import ParamsError, load_params  # noqa: E402
+from compact_perception.core.params import ParamsError, load_params  # noqa: E402
 from compact_perception.data.nuscenes.split import split_sizes  # noqa: E402
 
 #: samples/s of the first H200 measurement (12 compact runs sharing one GPU, batch 6, fp32)

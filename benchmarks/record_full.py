@@ -37,7 +37,7 @@ sys.path.insert(0, str(ROOT / "src"))
 
 from compact_perception.core import io  # noqa: E402
 from compact_perception.core.catalog import MODELS  # noqa: E402
-from compact_perception.core.config import ParamsError, load_params  # noqa: E402
+from compact_perception.core.params import ParamsError, load_params  # noqa: E402
 from compact_perception.core.errors import ReportInputError  # noqa: E402
 from compact_perception.core.plateau_record import STATUS_COMPLETE, record_problem, record_runs  # noqa: E402
 

@@ -11,9 +11,9 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-from compact_perception.core.config import Params, ParamsError, load_params
+from compact_perception.core.params import Params, ParamsError, load_params
 from compact_perception.core.machine import bounded_counts_line, device_problem
-from compact_perception.core.params_audit import audited
+from compact_perception.core.params.audit import audited
 
 
 def start(params_path: str | Path = "params.yaml", workers: tuple[str, ...] = (), device: bool = False) -> Params:
@@ -46,7 +46,7 @@ def start(params_path: str | Path = "params.yaml", workers: tuple[str, ...] = ()
 def worker_logging() -> None:
     """In a stage's worker process (:mod:`compact_perception.learning.training.parallel`): the stage's
     logging. The worker gets the stage's validated params and its runs pickled (audited like the
-    stage's when the audit is on: core.params_audit), never a file to read again."""
+    stage's when the audit is on: core.params.audit), never a file to read again."""
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
 
 

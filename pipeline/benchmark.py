@@ -21,7 +21,7 @@ from pathlib import Path
 import torch
 
 from compact_perception.core import io
-from compact_perception.core.catalog import dataset_ids, model_ids, sim_dataset_ids
+from compact_perception.core.catalog import dataset_ids, group_of, model_ids, sim_dataset_ids
 from compact_perception.core.determinism import apply_policy
 from compact_perception.core.errors import os_error_line
 from compact_perception.learning.models import DATASET_SPECS, build_model
@@ -73,7 +73,7 @@ def main(argv: list[str] | None = None) -> None:
                 res = measure_model(model, batch, device, bp.warmup, bp.runs)
                 if device.type == "cuda":  # Table III at the hardware's pace, eager fp32 (above) beside it
                     res["hardware_pace"] = table3_inference(model, batch, device, bp.warmup, bp.runs)
-                if m.startswith("compact") and not args.no_onnx:
+                if group_of(m).onnx and not args.no_onnx:
                     cpu_ms = res["latency_ms"]
                     if device.type != "cpu":  # the ratio compares the two runtimes on the same CPU
                         cpu_model, cpu_batch = model.to("cpu"), {k: v.cpu() for k, v in batch.items()}

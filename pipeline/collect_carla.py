@@ -18,7 +18,7 @@ import sys
 import logging
 
 from compact_perception.core.catalog import sim_dataset_ids
-from compact_perception.core.config import ParamsError, load_params
+from compact_perception.core.params import ParamsError, load_params
 from compact_perception.core.errors import RecordError, os_error_line
 
 

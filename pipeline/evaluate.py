@@ -24,7 +24,7 @@ from typing import Mapping
 from compact_perception.core.cache import CacheError, read_split, verify_cache
 from compact_perception.core.catalog import MODELS, dataset_ids
 from compact_perception.core import io
-from compact_perception.core.config import Params
+from compact_perception.core.params import Params
 from compact_perception.core.errors import RunError, os_error_line
 from compact_perception.core.layout import cache_dir, evaluation_folders, floor_paths
 from compact_perception.evaluation.evaluate import check_best, evaluate_floors, evaluate_run, read_best

@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 
 from compact_perception.core.catalog import sim_dataset_ids
-from compact_perception.core.config import ParamsError
+from compact_perception.core.params import ParamsError
 from compact_perception.core.errors import RecordError, RunError, os_error_line
 from compact_perception.data.sources import data_source
 

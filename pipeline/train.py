@@ -23,9 +23,9 @@ from pathlib import Path
 
 from compact_perception.core.cache import CacheError
 from compact_perception.core.catalog import dataset_ids, model_ids
-from compact_perception.core.config import Params, ParamsError
+from compact_perception.core.params import Params, ParamsError
 from compact_perception.core.errors import RunError, os_error_line
-from compact_perception.core.params_errors import shown
+from compact_perception.core.params.errors import shown
 from compact_perception.learning.plan import PlannedRun, dataset_runs, recipe_of
 from compact_perception.execution.executor import chosen_executor, run_jobs
 from compact_perception.execution.jobs import Job, JobError, RunAloneError

@@ -32,7 +32,7 @@ import sys
 from pathlib import Path
 
 from compact_perception.core.cache import CacheError
-from compact_perception.core.config import ParamsError
+from compact_perception.core.params import ParamsError
 from compact_perception.core.errors import RunError, os_error_line
 from compact_perception.execution.executor import chosen_executor
 from compact_perception.execution.jobs import JobError

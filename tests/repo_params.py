@@ -1,6 +1,6 @@
 """The committed params.yaml as the tests' parameters: load it and override, never repeat values.
 
-Every results-changing setting is required by the schema (core/config.py), so a test that needs a
+Every results-changing setting is required by the schema (core/params/), so a test that needs a
 params object or one section of it starts from the repository's params.yaml:
 
     repo_params_dict()                                   # mutable dict of params.yaml
@@ -16,7 +16,7 @@ from typing import Any
 
 import yaml
 
-from compact_perception.core.config import Params, parse_params
+from compact_perception.core.params import Params, parse_params
 
 ROOT = Path(__file__).resolve().parents[1]
 PARAMS_YAML = ROOT / "params.yaml"
@@ -48,7 +48,7 @@ def section(path: str, **overrides: Any) -> Any:
 
 def scaled(value: Any) -> dict:
     """``{default: v, full: v, paper: v}``: a Scaled value equal at every scale."""
-    from compact_perception.core.config import SCALES
+    from compact_perception.core.params import SCALES
 
     return {s: copy.deepcopy(value) for s in SCALES}
 

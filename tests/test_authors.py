@@ -19,7 +19,7 @@ import yaml
 import authors_fixture as fx
 from compact_perception.data.authors import ingest_authors, plan_authors
 from compact_perception.core.cache import read_cache
-from compact_perception.core.config import ParamsError, parse_params
+from compact_perception.core.params import ParamsError, parse_params
 from compact_perception.core.errors import RecordError
 from pipeline import generate as generate_stage
 from pipeline import preprocess as preprocess_stage

@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from compact_perception.core.cache import read_split
-from compact_perception.core.config import parse_params
+from compact_perception.core.params import parse_params
 from compact_perception.data.loader import make_loader
 from compact_perception.evaluation.evaluate import _score_frames
 from compact_perception.evaluation.floor import fit_trivial

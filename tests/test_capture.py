@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from compact_perception.core import catalog
-from compact_perception.core.config import ParamsError, parse_params
+from compact_perception.core.params import ParamsError, parse_params
 from compact_perception.core.plateau_record import NEUTRAL_KEYS
 from compact_perception.data.loader import make_loader
 from compact_perception.learning.training import distributed as ddp

@@ -23,7 +23,7 @@ from compact_perception.data.carla.collector import CarlaError, SensorQueues, co
 from compact_perception.data.carla.recording import Recording, check_recording, import_recording, plan_document
 from compact_perception.data.carla.rig import sensor_specs
 from compact_perception.core.classes import BEV_NAMES, CARLA_PALETTE, TAG
-from compact_perception.core.config import ParamsError, load_params
+from compact_perception.core.params import ParamsError, load_params
 from compact_perception.core.errors import RecordError
 from compact_perception.data.geometry import topview_center, topview_index
 from compact_perception.data.preprocess import preprocess_sim

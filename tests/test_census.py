@@ -69,7 +69,7 @@ def test_adam_step_counters_are_host_side():
 import pytest  # noqa: E402
 
 from compact_perception.core import catalog  # noqa: E402
-from compact_perception.core.config import parse_params  # noqa: E402
+from compact_perception.core.params import parse_params  # noqa: E402
 from compact_perception.core.errors import NonFinite  # noqa: E402
 from compact_perception.data.loader import make_loader  # noqa: E402
 from compact_perception.learning.plan import recipe_of  # noqa: E402

@@ -7,9 +7,10 @@ import typing
 import pytest
 from pydantic import BaseModel
 
-from compact_perception.core import config
+from compact_perception.core import params as config
 from compact_perception.core import catalog
-from compact_perception.core.config import ParamsError, load_params, parse_params
+from compact_perception.core.params import ParamsError, load_params, parse_params
+from repo_params import repo_params_dict
 
 
 def test_committed_params_are_valid(root):
@@ -170,7 +171,7 @@ def test_lr_floor_not_above_lr(params_dict):
 
 def test_optimizer_settings_belong_to_their_optimizer(params_dict):
     """Adam's betas/eps are required with adam and refused with sgd (no hidden torch defaults)."""
-    from compact_perception.core.config import ParamsError, parse_params
+    from compact_perception.core.params import ParamsError, parse_params
 
     adam = params_dict["train"]["models"]["polarnet"]
     del adam["betas"]
@@ -210,3 +211,24 @@ def test_a_model_listed_without_a_recipe_is_named(params_dict):
     del params_dict["train"]["models"]["polarnet"]
     with pytest.raises(ParamsError, match=r"model_ids: no recipe train\.models\.<id> for \['polarnet'\]"):
         parse_params(params_dict)
+
+
+def test_scale_is_resolved_once_when_params_load():
+    """``Params`` resolves every per-scale value at its ``scale`` once, when it loads, with the one
+    resolver (``resolve_scale``, which the record's settings use too); a copy that changes the
+    scale resolves again."""
+    from compact_perception.core.params.base import resolve_scale
+
+    d = repo_params_dict()
+    d["datasets"]["B"]["frames"] = {"default": 40, "full": 500, "paper": 10000}
+    d["world"]["resolution"] = {"default": 32, "full": 64, "paper": 128}
+    p = config.parse_params(d)
+    assert (p.scale, p.resolution, p.frames_of("B")) == ("default", 32, 40)
+    assert p._at_scale == resolve_scale(p.model_dump(mode="python"), "default")
+    assert p.split_counts_of("B") == {"train": 12, "val": 8, "test": 20}      # 3:2:5 of 40, by hand
+    full = p.model_copy(update={"scale": "full"})
+    assert (full.resolution, full.frames_of("B")) == (64, 500)
+    assert full.split_counts_of("B") == {"train": 300, "val": 50, "test": 150}  # 6:1:3 of 500
+    assert full.seeds_of("compact", "A") == p.seeds_of("compact", "A", "full")
+    assert resolve_scale({"a": [{"default": 1, "full": 2, "paper": 3}], "b": {"default": 0}}, "full") == \
+        {"a": [2], "b": {"default": 0}}

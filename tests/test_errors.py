@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from compact_perception.core.config import ParamsError, load_params
+from compact_perception.core.params import ParamsError, load_params
 
 from repo_params import ROOT, cap_epochs, repo_params_dict, set_seeds
 from synthetic import make_cache

@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from compact_perception.core.config import parse_params
+from compact_perception.core.params import parse_params
 from compact_perception.core.determinism import NUMPY_AVX512, PINNED_ENV
 from compact_perception.execution import pool
 from compact_perception.execution.executor import PoolExecutor, chosen_executor, executor_for, run_jobs

@@ -62,7 +62,7 @@ def test_mgn_phase_records_the_authors_update_and_locates_a_change(root, tmp_pat
     """The authors' form: exact G_i, dL_MGN/dw_i, w_i and the second-order .grad of every
     parameter, reproducible; a change in the LS head moves LS's entries but not DE's or SS's
     (their G_i never see that head); Algorithm 1 writes no .grad."""
-    from compact_perception.core.config import load_params
+    from compact_perception.core.params import load_params
 
     fp = _script(root, monkeypatch)
     params = load_params(root / "params.yaml")

@@ -15,7 +15,7 @@ import torch
 
 from compact_perception.core.cache import write_cache
 from compact_perception.core.classes import BEV_NAMES, CARLA_NAMES
-from compact_perception.core.config import parse_params
+from compact_perception.core.params import parse_params
 from compact_perception.evaluation.evaluate import evaluate_floors
 from compact_perception.core.floor_rule import FLOOR_PREDICTORS
 from compact_perception.evaluation.floor import TRIVIAL, FixedPredictor, fit_trivial, floor_of, margins

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from compact_perception.core.config import load_params, parse_params
+from compact_perception.core.params import load_params, parse_params
 from compact_perception.core.errors import ReportInputError
 from compact_perception.core.plateau_record import (STATUS_INCOMPLETE, changed_keys, record_problem, record_runs,
                                                     write_tree)

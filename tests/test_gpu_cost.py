@@ -21,7 +21,7 @@ def _module():
 
 
 def test_runs_and_frames_are_the_params_ones():
-    from compact_perception.core.config import load_params
+    from compact_perception.core.params import load_params
 
     mod = _module()
     full = load_params(ROOT / "params.yaml").model_copy(update={"scale": "full"})

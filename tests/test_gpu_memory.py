@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from compact_perception.core.config import parse_params
+from compact_perception.core.params import parse_params
 from compact_perception.execution.executor import run_jobs
 from compact_perception.execution.jobs import Failed, Job, JobError, RunAloneError, call
 from compact_perception.learning.training import memory, memory_probe, parallel

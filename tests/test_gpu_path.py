@@ -25,7 +25,7 @@ import pytest
 import torch
 import yaml
 
-from compact_perception.core.config import ParamsError, parse_params
+from compact_perception.core.params import ParamsError, parse_params
 from compact_perception.core.errors import RunError
 from compact_perception.learning.plan import recipe_of
 from compact_perception.learning.training import distributed as ddp

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from compact_perception.core.config import MAX_PARAMS_VALUES, ParamsError, load_params, parse_params
+from compact_perception.core.params import MAX_PARAMS_VALUES, ParamsError, load_params, parse_params
 from repo_params import repo_params_dict
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -188,14 +188,14 @@ def test_checker_resolves_relative_and_lazy_imports(tmp_path):
     ("compact_perception.learning.training.train", "compact_perception.evaluation.evaluate", True),
     ("compact_perception.evaluation.evaluate", "compact_perception.learning.metrics", False),
     ("compact_perception.report.study", "compact_perception.learning.weighting", False),
-    ("compact_perception.learning.training.train", "compact_perception.core.config", False),
+    ("compact_perception.learning.training.train", "compact_perception.core.params", False),
     ("compact_perception.data.carla.recording", "compact_perception.data.preprocess", True),  # a source, its consumer
     ("compact_perception.data.carla.recording", "compact_perception.data.record", False),
     ("compact_perception.data.preprocess", "compact_perception.data.sources", False),
     ("compact_perception.execution.pool", "compact_perception.learning.training.train", True),
     ("compact_perception.execution.executor", "compact_perception.evaluation.evaluate", True),
     ("compact_perception.learning.training.parallel", "compact_perception.execution.pool", False),
-    ("compact_perception.execution.settings", "compact_perception.core.params_file", False),
+    ("compact_perception.execution.settings", "compact_perception.core.params.file", False),
 ])
 def test_layer_order(importer, imported, upward):
     assert (_layer(imported) > _layer(importer)) is upward
@@ -366,7 +366,7 @@ def test_the_report_stage_runs_without_torch(tmp_path):
 # ----------------------------------------------------------------------------- scale, resolved once
 #: The one module that resolves a per-scale value at the params' own ``scale``: ``Params``'
 #: accessors (``resolution``, ``frames_of``, ``split_counts_of``, ``study_datasets``, ...).
-SCALE_RESOLVED_IN = PKG / "core" / "params_schema.py"
+SCALE_RESOLVED_IN = PKG / "core" / "params" / "schema.py"
 
 
 def _scale_lookups(path: Path) -> list[str]:
@@ -383,7 +383,7 @@ def test_scale_is_resolved_where_params_load():
     they ask ``Params`` for the value at its scale, so the scale is chosen in one place."""
     files = [p for d in (PKG, ROOT / "pipeline", ROOT / "benchmarks") for p in sorted(d.rglob("*.py"))]
     found = [hit for p in files if p != SCALE_RESOLVED_IN for hit in _scale_lookups(p)]
-    assert not found, "a per-scale value resolved outside core/params_schema.py:\n" + "\n".join(found)
+    assert not found, "a per-scale value resolved outside core/params/schema.py:\n" + "\n".join(found)
     assert _scale_lookups(SCALE_RESOLVED_IN), "the checker finds nothing where the scale is resolved"
 
 

@@ -456,7 +456,7 @@ def test_evaluate_run_writes_paper_mv_and_field_metrics(tmp_path, params_dict) -
 
     import pandas as pd
 
-    from compact_perception.core.config import parse_params
+    from compact_perception.core.params import parse_params
     from compact_perception.evaluation.evaluate import evaluate_run
     from compact_perception.learning.models import build_model
     from run_fixture import run_in

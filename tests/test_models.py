@@ -256,12 +256,15 @@ def test_tiny_overfit(model_id: str) -> None:
     assert history[-1] < history[0], history
 
 
-def test_network_missing_a_contract_member_fails_at_registration():
-    """``register_network`` checks the factory's network class against ``PerceptionNet``: a class
-    without ``shared_layers`` (or without a return annotation) never reaches training."""
+def test_network_missing_a_contract_member_fails_when_found():
+    """``network_factory`` checks a network module's ``build`` against ``PerceptionNet``: a class
+    without ``shared_layers`` (or a ``build`` without a return annotation, or a module without
+    ``build``) never reaches training."""
+    import types
+
     from torch import nn
 
-    from compact_perception.learning.models.base import NETWORKS, PerceptionNet, contract_gaps, register_network
+    from compact_perception.learning.models.base import PerceptionNet, contract_gaps, network_factory
 
     class Partial(nn.Module):
         tasks = ("de",)
@@ -273,31 +276,35 @@ def test_network_missing_a_contract_member_fails_at_registration():
         def compute_losses(self, outputs, batch):
             return {}
 
-    def factory(ds, info):
+    def build(ds, info):
         return Partial()
 
-    factory.__annotations__["return"] = Partial  # a local class: the annotation itself, not its name
-
+    build.__annotations__["return"] = Partial  # a local class: the annotation itself, not its name
+    module = types.ModuleType("compact_perception.learning.models.partial")
+    module.build = build
     with pytest.raises(TypeError, match=r"network 'partial': Partial does not meet the PerceptionNet contract "
                                         r"\(models/base.py\); it lacks: method shared_layers\(\)"):
-        register_network("partial")(factory)
-    assert "partial" not in NETWORKS
+        network_factory(module)
 
     def unannotated(ds, info):
         return Partial()
 
+    module.build = unannotated
     with pytest.raises(TypeError, match="must annotate its return with the network class"):
-        register_network("partial")(unannotated)
+        network_factory(module)
+    with pytest.raises(TypeError, match=r"network 'empty': its module defines no build\(spec, info\) function"):
+        network_factory(types.ModuleType("compact_perception.learning.models.empty"))
     assert contract_gaps(nn.Module) == ["class attribute 'tasks'", "class attribute 'argmax_tasks'", "method forward()",
                                         "method compute_losses()", "method shared_layers()"]
     assert PerceptionNet.__doc__
 
 
-def test_every_registered_network_meets_the_contract():
+def test_every_network_meets_the_contract():
     from compact_perception.learning.models import NETWORKS
     from compact_perception.learning.models.base import contract_gaps
 
-    for key in NETWORKS.keys():
-        cls = NETWORKS[key].__annotations__["return"]
-        cls = NETWORKS[key].__globals__[cls] if isinstance(cls, str) else cls
+    assert sorted(NETWORKS) == ["chen", "compact", "polarnet", "segnet"]
+    for key, factory in NETWORKS.items():
+        cls = factory.__annotations__["return"]
+        cls = factory.__globals__[cls] if isinstance(cls, str) else cls
         assert contract_gaps(cls) == [], key

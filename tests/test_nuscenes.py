@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from compact_perception.core.classes import CARLA_NAMES, NUSCENES_NAMES, TAG
-from compact_perception.core.config import WorldParams, parse_params
+from compact_perception.core.params import WorldParams, parse_params
 from compact_perception.data.geometry import VIEWS, topview_index
 from compact_perception.data.nuscenes import LIDAR_CHANNEL, VIEW_CHANNELS
 from compact_perception.data.nuscenes.classmap import CARLA_TO_NUSCENES, NUSCENES_INDEX, actor_category

@@ -13,7 +13,7 @@ from types import SimpleNamespace
 import pytest
 import yaml
 
-from compact_perception.core.config import parse_params
+from compact_perception.core.params import parse_params
 from compact_perception.learning.plan import dataset_runs
 from compact_perception.learning.training import parallel
 from compact_perception.learning.training.parallel import Job, JobError, run_jobs
@@ -171,7 +171,7 @@ def test_each_gpu_worker_gets_its_share_of_the_memory(monkeypatch):
 
 @pytest.mark.parametrize("value, ok", [("auto", True), (2, True), (0, False), ("many", False), (True, False)])
 def test_parallel_runs_is_a_count_or_auto(value, ok):
-    from compact_perception.core.config import ParamsError
+    from compact_perception.core.params import ParamsError
 
     data = repo_params_dict()
     data["train"]["parallel_runs"] = value

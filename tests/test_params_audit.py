@@ -1,12 +1,12 @@
-"""The params audit (core/params_audit.py) records what a stage reads, including the base recipe
+"""The params audit (core/params/audit.py) records what a stage reads, including the base recipe
 keys a merged recipe inherits (dvc.yaml must list ``train.recipe`` beside ``train.models.<id>``)."""
 from __future__ import annotations
 
 import json
 from functools import partial
 
-from compact_perception.core.config import parse_params
-from compact_perception.core.params_audit import ENV_VAR, ParamsView, _Log, leaf_keys
+from compact_perception.core.params import parse_params
+from compact_perception.core.params.audit import ENV_VAR, ParamsView, _Log, leaf_keys
 from compact_perception.learning.plan import planned_run
 from compact_perception.learning.training.parallel import Job, run_jobs
 

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from compact_perception.core.config import load_params, parse_params
+from compact_perception.core.params import load_params, parse_params
 from compact_perception.core.plateau_record import settings_at
 from compact_perception.report.collect import ReportInputError
 from compact_perception.report.index import build_reports

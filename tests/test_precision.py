@@ -161,7 +161,7 @@ def test_channels_last_inputs_is_a_setting_and_trains(tmp_path, params_dict) -> 
     'inputs' leaves the targets in their own layout and its losses equal true's but in their last
     bits (the sums run in another order), and so do the gradients (the loss's gradient reaches the
     network in the targets' layout: another kernel path)."""
-    from compact_perception.core.config import ParamsError, parse_params
+    from compact_perception.core.params import ParamsError, parse_params
 
     params_dict["train"]["channels_last"] = "no"
     with pytest.raises(ParamsError, match=r"train\.channels_last: .*boolean.*'inputs'"):

@@ -10,7 +10,7 @@ import torch
 
 from compact_perception.core.cache import CacheError, read_cache, write_cache
 from compact_perception.core.classes import BEV_NAMES, CARLA_NAMES, CARLA_PALETTE, palette_to_index
-from compact_perception.core.config import parse_params
+from compact_perception.core.params import parse_params
 from compact_perception.data.loader import make_loader, to_device
 from compact_perception.data.dvs import dvs_colour_to_image, events_to_image
 from compact_perception.data.lidar import height_channel, ls_ground_truth, topview_15l, topview_1l

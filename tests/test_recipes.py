@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from compact_perception.core.config import ParamsError, merge_recipe, parse_params
+from compact_perception.core.params import ParamsError, merge_recipe, parse_params
 
 # The recipes as params.yaml wrote them out in full (git show b6a4d10:params.yaml, train.models),
 # before the base recipe: the merged recipes must equal them, key for key.

@@ -10,7 +10,7 @@ import pytest
 import yaml
 
 from compact_perception.core import catalog
-from compact_perception.core.config import DatasetsParams, load_params
+from compact_perception.core.params import DatasetsParams, load_params
 from compact_perception.learning.weighting import WEIGHTINGS, weighting_class, weighting_settings
 
 from imports import import_targets, module_file
@@ -55,7 +55,7 @@ def test_the_data_sources_equal_the_schema():
     each data stage (compact_perception.data.sources): no stage branches on the source by hand."""
     import typing
 
-    from compact_perception.core.params_schema import SimDatasetParams
+    from compact_perception.core.params.schema import SimDatasetParams
     from compact_perception.data.sources import SOURCES
 
     assert set(typing.get_args(SimDatasetParams.model_fields["source"].annotation)) == set(SOURCES.keys())
@@ -181,14 +181,16 @@ def test_no_import_cycles():
             visit(m)
 
 
-def test_every_network_is_registered_by_its_own_module():
-    """A new network is one file: its factory registers itself (``@register_network``) and the
-    models package imports the module; every model names a registered network, every network
-    serves some model."""
+def test_every_network_is_found_by_its_module():
+    """A new network is one file: the models package finds every module with a ``build`` (no
+    second registration, no second id); every model names such a module, every network serves
+    some model, and the code fingerprint counts each network module."""
     from compact_perception.learning.models import NETWORKS, build_model
+    from compact_perception.learning.training.provenance import fingerprinted_files
 
     networks = {catalog.MODELS[m].network for m in catalog.model_ids()}
     assert networks == set(NETWORKS.keys())
+    assert {f"compact_perception/learning/models/{n}.py" for n in networks} <= set(fingerprinted_files())
     for m in catalog.model_ids():
         assert set(build_model(m, catalog.dataset_ids()[0]).tasks) == set(catalog.MODELS[m].tasks), m
 

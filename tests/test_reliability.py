@@ -21,7 +21,7 @@ import pytest
 import torch
 import yaml
 
-from compact_perception.core.config import ParamsError, load_params, parse_params
+from compact_perception.core.params import ParamsError, load_params, parse_params
 from compact_perception.core.errors import RunError
 
 import authors_fixture as fx
@@ -301,7 +301,7 @@ def test_a_duplicate_key_in_params_is_an_error_naming_key_and_line(tmp_path):
 
 
 def test_a_merge_key_and_the_same_key_in_other_mappings_are_not_duplicates():
-    from compact_perception.core.config import UniqueKeyLoader
+    from compact_perception.core.params import UniqueKeyLoader
 
     text = "base: &b {lr: 0.1, momentum: 0.9}\nmodel:\n  <<: *b\n  lr: 0.2\nother: {lr: 0.3}\n"
     assert yaml.load(text, Loader=UniqueKeyLoader) == {
@@ -403,7 +403,7 @@ def test_a_params_file_too_large_is_refused_at_once(tmp_path):
     """A 50 MB params file took 376 s to reach its error; anything over 1 MiB is refused unread."""
     import time
 
-    from compact_perception.core.config import MAX_PARAMS_BYTES
+    from compact_perception.core.params import MAX_PARAMS_BYTES
     from pipeline.nuscenes_sim import main
 
     path = tmp_path / "params.yaml"

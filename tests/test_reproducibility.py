@@ -17,7 +17,7 @@ import pytest
 import yaml
 
 from compact_perception.learning.training import provenance
-from compact_perception.core.config import parse_params
+from compact_perception.core.params import parse_params
 from compact_perception.evaluation.evaluate import evaluate_run
 from compact_perception.learning.plan import planned_run
 from compact_perception.learning.training.train import train_run
@@ -173,9 +173,9 @@ def test_compact_run_is_exported_as_onnx_matching_pytorch(reference, tmp_path_fa
 #: evaluation or the report: editing those restarts no run.
 FINGERPRINTED = {
     *(f"compact_perception/core/{m}.py" for m in (
-        "__init__", "cache", "catalog", "classes", "config", "depth", "depth_metrics", "determinism", "errors",
-        "io", "layout", "machine", "params_base", "params_errors", "params_file", "params_schema", "recipe",
-        "registry", "scores")),
+        "__init__", "cache", "catalog", "classes", "depth", "depth_metrics", "determinism", "errors",
+        "io", "layout", "machine", "registry", "scores")),
+    *(f"compact_perception/core/params/{m}.py" for m in ("__init__", "base", "errors", "file", "recipe", "schema")),
     "compact_perception/__init__.py", "compact_perception/data/__init__.py", "compact_perception/data/loader.py",
     *(f"compact_perception/learning/{m}.py" for m in (
         "__init__", "losses", "metrics", "onnx_export", "plan", "schedule", "views")),
@@ -226,7 +226,8 @@ def test_source_fingerprint_moves_with_the_code_a_run_executes(tmp_path, monkeyp
         real = _fingerprint()
         monkeypatch.setattr(provenance, "PACKAGE_ROOT", package)
         assert _fingerprint() == real  # the copy is read like the tree itself
-        for edited, moves in ((package / "core" / "config.py", True), (package / "learning" / "weighting" / "uw.py", True),
+        for edited, moves in ((package / "core" / "params" / "schema.py", True),
+                              (package / "learning" / "weighting" / "uw.py", True),
                               (package / "learning" / "metrics.py", True), (tmp_path / "pipeline" / "__init__.py", True),
                               (tmp_path / "pipeline" / "train.py", False), (package / "execution" / "pool.py", False),
                               (package / "learning" / "training" / "parallel.py", False),

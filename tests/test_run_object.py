@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from compact_perception.core.config import parse_params
+from compact_perception.core.params import parse_params
 from compact_perception.core.layout import run_paths, study_paths
 from compact_perception.learning.plan import PlannedRun, dataset_runs, planned_run
 

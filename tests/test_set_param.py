@@ -20,13 +20,13 @@ import pytest
 import yaml
 from pydantic import BaseModel
 
-from compact_perception.core.config import ParamsError, load_params
-from compact_perception.core.params_schema import Params
+from compact_perception.core.params import ParamsError, load_params
+from compact_perception.core.params.schema import Params
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS: tuple[Path, ...] = (ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), ROOT / "params.yaml")
 SET_PARAM = re.compile(r"(?:^|[\s`(])-S\s+('[^']*'|\"[^\"]*\"|[^\s`)]+)")
-#: The enum values YAML 1.1 reads as booleans, each accepted as its key's value (params_schema.py).
+#: The enum values YAML 1.1 reads as booleans, each accepted as its key's value (core/params/schema.py).
 BOOLEAN_WORDS = {("train.cuda_graphs", "off")}
 #: Documented on purpose as what a stage refuses (docs/design.md: a typo'd new key).
 REFUSED = {"+train.recipe.lrr=0.1": "train.recipe.lrr: unknown key"}
@@ -94,7 +94,7 @@ def test_the_docs_show_set_params_and_the_schema_names_its_boolean_words():
     assert ("train.cuda_graphs", "auto") in values and ("train.device", "cuda") in values
     assert ("train.models.<id>.plateau_rule", "torch") in values  # a recipe's enums too
     misread = {(k, v) for k, v in values if yaml.safe_load(v) != v}
-    assert misread == BOOLEAN_WORDS, "an enum value YAML 1.1 does not read as text: accept it in params_schema.py"
+    assert misread == BOOLEAN_WORDS, "an enum value YAML 1.1 does not read as text: accept it in core/params/schema.py"
 
 
 @pytest.mark.parametrize("override", documented_overrides())

@@ -50,7 +50,7 @@ def _as_policy_says(tf32: bool, deterministic: bool) -> None:
 
 @pytest.mark.parametrize("tf32, deterministic", [(False, True), (True, False)])
 def test_evaluation_starts_under_the_policy(params_dict, monkeypatch, tf32_on, tf32, deterministic):
-    from compact_perception.core.config import parse_params
+    from compact_perception.core.params import parse_params
     from compact_perception.evaluation import evaluate
     from compact_perception.learning.plan import planned_run
 

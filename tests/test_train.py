@@ -10,7 +10,7 @@ import sys
 import pytest
 import torch
 
-from compact_perception.core.config import parse_params
+from compact_perception.core.params import parse_params
 from compact_perception.learning.schedule import EarlyStop, Plateau
 from compact_perception.learning.training.train import selection_score, train_run
 

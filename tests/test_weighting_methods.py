@@ -166,7 +166,7 @@ def test_params_schemas(schema, good, bad) -> None:
 def test_weighting_settings_are_checked_by_their_method_schema(params_dict, where, value, message) -> None:
     """A recipe's section passes the params schema (it is a mapping named after the weighting) and
     is checked by its method's own schema when a stage starts: one line naming the key."""
-    from compact_perception.core.config import ParamsError, parse_params
+    from compact_perception.core.params import ParamsError, parse_params
     from compact_perception.learning.weighting import weighting_settings
 
     node = params_dict
@@ -181,7 +181,7 @@ def test_weighting_settings_are_checked_by_their_method_schema(params_dict, wher
 
 
 def test_a_section_of_another_method_is_an_error_naming_the_key(params_dict) -> None:
-    from compact_perception.core.config import ParamsError, parse_params
+    from compact_perception.core.params import ParamsError, parse_params
 
     params_dict["train"]["models"]["compact_15l_mgn"]["uw"] = {"lr": 0.025}
     with pytest.raises(ParamsError, match=r"^params\.yaml: train\.models\.compact_15l_mgn\.uw: unknown key"):

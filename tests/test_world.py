@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from compact_perception.core.classes import CARLA_NAMES, CARLA_PALETTE, palette_to_index
-from compact_perception.core.config import ParamsError, parse_params
+from compact_perception.core.params import ParamsError, parse_params
 from compact_perception.data.geometry import VIEWS, topview_center
 from compact_perception.data.world import camera as cam
 from compact_perception.data.world import generate as gen
@@ -292,7 +292,7 @@ def test_the_world_refuses_a_dataset_of_another_source(tmp_path):
     """generate_dataset writes only 'sim' sets; another source's set is that source's, one line naming the key."""
     from repo_params import repo_params_dict
 
-    from compact_perception.core.config import ParamsError, parse_params
+    from compact_perception.core.params import ParamsError, parse_params
     from compact_perception.data.world.generate import generate_dataset
 
     data = repo_params_dict()

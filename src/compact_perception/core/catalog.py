@@ -15,19 +15,24 @@ This module imports nothing heavy (no torch), so the config and every stage can 
   (``of_terms``, :mod:`.scores`), which evaluation, the report and the statistics call (the four
   test-set means' scores: :func:`scores_from_means`);
 - a **dataset**: its report label and whether the embedded world simulates it;
-- a **model**: its report label, its group (``compact``: the paper's network, trained per
-  ``seeds``; ``baseline``: section V-D, per ``baseline_seeds``), the LiDAR channels it reads, its
-  tasks, the network (``compact_perception.learning.models.NETWORKS``) that builds it, its row in the
-  report's tables (``table_order``) and the tasks it gives "the combination of baselines"
-  (``combination``, section V-D: GradNorm's DE and SS, PolarNet's LS, Chen et al.'s BEVP);
+- a **model** (its one registration; nothing else gives it an id): what the report shows of it
+  (its label, its row in the tables, ``table_order``, and the tasks it gives "the combination of
+  baselines", ``combination``, section V-D: GradNorm's DE and SS, PolarNet's LS, Chen et al.'s
+  BEVP) and what training needs (its group, the LiDAR channels it reads, its tasks, the network
+  module of ``learning/models`` whose ``build`` makes it, and its epoch cost, which orders a stage's
+  runs);
+- a **model group** (:data:`GROUPS`): the rules its models share: which params key lists their
+  training seeds, whether their recipe takes the paper's depth loss (``de_loss``), whether a
+  finished run exports its network to ONNX (``compact``: the paper's network; ``baseline``:
+  section V-D);
 - a **loss-weighting method**: its report label and whether its weights change during training
   (``adaptive``: the report draws those);
 - a **data source**: the label a report gives the source a cache records (:data:`SOURCE_LABEL`).
 
-Adding a model (three files): the network's file in ``models/`` (its factory registers itself with
-``@register_network``), the model's entry here, and in params.yaml its recipe
+Adding a model (docs/extending.md): the model's entry here, a network module in
+``learning/models/`` defining ``build`` (or an existing one), and in params.yaml its recipe
 (``train.models.<id>``) and its id in ``model_ids`` (the list the train and evaluate stages read;
-its group here decides whether ``datasets.<ds>.training.seeds`` or ``baseline_seeds`` apply).
+its group's entry here decides its seeds, its depth loss and its ONNX export).
 """
 from __future__ import annotations
 
@@ -44,7 +49,7 @@ __all__ = [
     "SOURCE_LABEL", "source_label", "STOP_PLATEAU", "STOP_CAP",
     "ScoreInfo", "SCORES", "table2_columns", "per_frame_scores", "per_frame_columns", "column_label", "lower_is_better",
     "score_terms", "scores_from_means", "CLASS_MAP_TASKS", "ARGMAX_TASKS",
-    "WeightingInfo", "WEIGHTING_METHODS", "weighting_info",
+    "WeightingInfo", "WEIGHTING_METHODS", "weighting_info", "GroupInfo", "GROUPS", "group_of",
 ]
 
 
@@ -77,17 +82,37 @@ class DatasetInfo:
 
 
 @dataclass(frozen=True)
+class GroupInfo:
+    """The rules every model of a group shares."""
+
+    seeds: Literal["dataset", "baseline"]    # its training seeds: datasets.<ds>.training.seeds ("dataset")
+                                             # or baseline_seeds ("baseline")
+    de_loss: bool                            # its recipe names the depth loss (train.recipe.de_loss:
+                                             # huber or smooth_l1); a group without keeps its own losses
+    onnx: bool                               # a finished run exports best.pt to ONNX; Table III runs it
+
+
+GROUPS: Registry[GroupInfo] = Registry("model group", ordered=True)
+GROUPS.register("compact")(GroupInfo(seeds="dataset", de_loss=True, onnx=True))     # the paper's network
+GROUPS.register("baseline")(GroupInfo(seeds="baseline", de_loss=False, onnx=False))  # section V-D
+
+
+@dataclass(frozen=True)
 class ModelInfo:
     label: str                               # report label: "15L+MGN (Alg. 1)"
-    group: Literal["compact", "baseline"]
+    group: str                               # its GROUPS entry: "compact" or "baseline"
     lidar_channels: int                      # LiDAR input channels read (1 or 15, section IV-C)
     tasks: tuple[str, ...]                   # task ids it predicts
-    network: str                             # models.NETWORKS key
+    network: str                             # the module of learning/models whose build() makes it
     table_order: int                         # its row in Tables II/III (the paper's order, baselines first)
     combination: tuple[str, ...] = ()        # the tasks it gives the combination of baselines (section V-D)
     epoch_cost: float = 1.0                  # CPU time of an epoch relative to the compact model's (measured at
                                              # 32 px: summary.json train_seconds / epochs_run); it only orders a
                                              # stage's runs, the longest first, so no core idles at the end
+
+    def __post_init__(self) -> None:
+        if self.group not in GROUPS:
+            raise KeyError(f"model {self.label!r}: unknown group {self.group!r}; known: {list(GROUPS.keys())}")
 
 
 TASKS: Registry[TaskInfo] = Registry("task", ordered=True)
@@ -120,11 +145,11 @@ MODELS.register("compact_15l")(ModelInfo("15L", "compact", 15, _ALL, "compact", 
 MODELS.register("compact_15l_mgn")(ModelInfo("15L+MGN (Alg. 1)", "compact", 15, _ALL, "compact", table_order=12))
 MODELS.register("compact_15l_mgn_authors")(ModelInfo("15L+MGN (authors' code)", "compact", 15, _ALL, "compact",
                                                      table_order=13))
-MODELS.register("gradnorm_segnet")(ModelInfo("GradNorm", "baseline", 15, ("de", "ss"), "gradnorm_segnet",
+MODELS.register("gradnorm_segnet")(ModelInfo("GradNorm", "baseline", 15, ("de", "ss"), "segnet",
                                              table_order=2, combination=("de", "ss"), epoch_cost=5.5))
 MODELS.register("polarnet")(ModelInfo("PolarNet", "baseline", 15, ("ls",), "polarnet", table_order=1,
                                       combination=("ls",), epoch_cost=1.0))
-MODELS.register("chen_bev")(ModelInfo("Chen et al.", "baseline", 15, ("bevp",), "chen_bev", table_order=0,
+MODELS.register("chen_bev")(ModelInfo("Chen et al.", "baseline", 15, ("bevp",), "chen", table_order=0,
                                       combination=("bevp",), epoch_cost=0.35))
 
 
@@ -268,6 +293,11 @@ def combination_source() -> dict[str, str]:
 def source_label(source: str) -> str:
     """The report label of a cache's ``source`` (the raw value where none is registered)."""
     return SOURCE_LABEL.get(source, source)
+
+
+def group_of(model_id: str) -> GroupInfo:
+    """The rules of ``model_id``'s group (its seeds key, depth loss, ONNX export)."""
+    return GROUPS[MODELS[model_id].group]
 
 
 def weighting_info(key: str) -> WeightingInfo:

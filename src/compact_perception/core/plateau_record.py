@@ -28,8 +28,8 @@ from .errors import ReportInputError
 from .floor_rule import FLOOR_PREDICTORS
 from .io import read_json, write_json, write_text
 from .layout import cache_dir, floor_paths, run_paths
-from .params_base import SCALES
-from .params_errors import shown
+from .params.base import SCALES, resolve_scale
+from .params.errors import shown
 
 __all__ = ["RECORD_VERSION", "RECORD_VERSIONS", "DEVICES", "RUN_KEYS", "SUMMARY_KEYS", "NEUTRAL_KEYS",
            "CUDA_ONLY_KEYS", "UNRECORDED_VALUES", "CURVE_NAMES", "STATUS_COMPLETE", "STATUS_INCOMPLETE",
@@ -124,17 +124,6 @@ def changed_keys(recorded: Mapping[str, Any], now: Mapping[str, Any], device: st
     return out
 
 
-def _resolve(value: Any, scale: str) -> Any:
-    """``value`` (plain params data) with every per-scale mapping replaced by its value at ``scale``."""
-    if isinstance(value, dict):
-        if value and set(value) == set(SCALES):
-            return _resolve(value[scale], scale)
-        return {k: _resolve(v, scale) for k, v in value.items()}
-    if isinstance(value, list):
-        return [_resolve(v, scale) for v in value]
-    return value
-
-
 def _flatten(prefix: str, value: Any, out: dict[str, Any]) -> None:
     if isinstance(value, dict) and value:
         for k, v in value.items():
@@ -153,8 +142,8 @@ def settings_at(params: Any, model: str, dataset: str, scale: str) -> dict[str, 
     every key), each per-scale value taken at ``scale`` whatever the file's own ``scale``."""
     if scale not in SCALES:
         raise ValueError(f"scale {scale!r}: expected one of {list(SCALES)}")
-    recipe = _resolve(params.train.models[model].model_dump(mode="json", exclude_none=True), scale)
-    section = _resolve(params.dataset(dataset).model_dump(mode="json"), scale)
+    recipe = resolve_scale(params.train.models[model].model_dump(mode="json", exclude_none=True), scale)
+    section = resolve_scale(params.dataset(dataset).model_dump(mode="json"), scale)
     section.get("training", {}).pop("seeds", None)
     if section.get("source") != "carla":          # another source's settings shape nothing here
         section.pop("carla", None)
@@ -164,9 +153,9 @@ def settings_at(params: Any, model: str, dataset: str, scale: str) -> dict[str, 
     out: dict[str, Any] = {"seed": params.seed,
                            "max_epochs": params.max_epochs_of(params.train.models[model], dataset, scale)}
     _flatten(f"train.models.{model}", recipe, out)
-    _flatten("train", _resolve(params.train.model_dump(mode="json", exclude={"models", "recipe"}), scale), out)
+    _flatten("train", resolve_scale(params.train.model_dump(mode="json", exclude={"models", "recipe"}), scale), out)
     for name in ("world", "preprocess", "evaluate"):
-        _flatten(name, _resolve(getattr(params, name).model_dump(mode="json"), scale), out)
+        _flatten(name, resolve_scale(getattr(params, name).model_dump(mode="json"), scale), out)
     _flatten(f"datasets.{dataset}", section, out)
     return {k: v for k, v in sorted(out.items()) if k not in NEUTRAL_KEYS}
 

@@ -3,17 +3,20 @@ from __future__ import annotations
 
 import importlib
 import pkgutil
+from types import ModuleType
 from typing import Callable, Generic, Iterable, Iterator, TypeVar
 
 T = TypeVar("T")
 
 
-def import_submodules(package: str, path: Iterable[str]) -> None:
-    """Import every module of ``package`` (its ``__path__``), in name order, so the ones that
-    register an entry on import (``@register(...)``) need no line in the package's ``__init__``:
-    a new model network or weighting method is one new file."""
-    for name in sorted(m.name for m in pkgutil.iter_modules(path)):
-        importlib.import_module(f"{package}.{name}")
+def import_submodules(package: str, path: Iterable[str]) -> dict[str, ModuleType]:
+    """Import every module of ``package`` (its ``__path__``), in name order, and return them by
+    their last name, so a module the package finds (a model network) or one that registers an
+    entry on import (a weighting method's ``@register(...)``) needs no line in the package's
+    ``__init__``: it is one new file. The code fingerprint counts every module of such a package
+    (``learning/training/provenance.py``)."""
+    return {name: importlib.import_module(f"{package}.{name}")
+            for name in sorted(m.name for m in pkgutil.iter_modules(path))}
 
 
 class Registry(Generic[T]):

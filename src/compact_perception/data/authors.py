@@ -81,7 +81,7 @@ from PIL import Image, UnidentifiedImageError
 from tqdm import tqdm
 
 from ..core.cache import write_cache
-from ..core.config import Params
+from ..core.params import Params
 from .dvs import dvs_colour_to_image
 from ..core.errors import RecordError
 from ..core.machine import bounded

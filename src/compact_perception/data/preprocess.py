@@ -35,7 +35,7 @@ from tqdm import tqdm
 from ..core.cache import write_cache
 from ..core.layout import CACHE_ROOT
 from ..core.classes import CARLA_PALETTE, palette_to_index
-from ..core.config import Params, PreprocessParams
+from ..core.params import Params, PreprocessParams
 from ..core.machine import bounded
 from .dvs import events_to_image
 from ..core.errors import RecordError  # re-exported: ``from .preprocess import RecordError`` keeps working

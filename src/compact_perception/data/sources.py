@@ -12,7 +12,7 @@ A source is a module that says what it does in each data stage:
 
 The generate stage (``pipeline/generate.py``) and :func:`compact_perception.data.preprocess.preprocess_dataset`
 look the source up here and call it. A new source is one module plus its line below; the params
-schema's ``source`` ids (``core.params_schema.SimDatasetParams``) must equal :data:`SOURCES`'
+schema's ``source`` ids (``core.params.schema.SimDatasetParams``) must equal :data:`SOURCES`'
 (``tests/test_registries.py``). nuScenes is not one of them: it has stages of its own
 (``nuscenes_sim``, ``ingest_nuscenes``) and no ``source`` key.
 """
@@ -23,7 +23,7 @@ from typing import Callable, Optional, Protocol
 
 from . import authors
 from .carla import source as carla_source
-from ..core.config import Params
+from ..core.params import Params
 from ..core.registry import Registry
 from .world import source as world_source
 

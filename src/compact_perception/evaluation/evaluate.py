@@ -29,7 +29,7 @@ from tqdm.auto import tqdm
 
 from ..core import catalog, io
 from ..core.cache import read_meta, read_split
-from ..core.config import Params
+from ..core.params import Params
 from ..core.errors import ReportInputError, RunError, checkpoint_load_reason
 from ..core.layout import BEST_HASH_KEY, RunPaths, floor_paths
 from ..core.depth import DEPTH_FAR_M, DEPTH_LOG_K

@@ -21,7 +21,7 @@ from typing import Any, Mapping, Optional
 
 import yaml
 
-from ..core.params_file import DuplicateKeyError, ExpansionError, UniqueKeyLoader
+from ..core.params.file import DuplicateKeyError, ExpansionError, UniqueKeyLoader
 
 __all__ = ["CLUSTER_FILE", "CLUSTER_FILE_ENV", "EXECUTORS", "EXECUTOR_ENV", "ClusterSettings", "SettingsError",
            "read_settings"]

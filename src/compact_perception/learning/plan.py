@@ -1,15 +1,15 @@
 """The runs of one dataset (README "Scale"): what its ``train@<ds>`` stage trains and its
 ``evaluate@<ds>`` stage scores.
 
-Every model of ``model_ids`` at its seeds (:meth:`~.core.config.Params.seeds_of`: the dataset's
+Every model of ``model_ids`` at its seeds (:meth:`~.core.params.Params.seeds_of`: the dataset's
 ``training.seeds`` for a compact model, ``baseline_seeds`` for a baseline) and, where the dataset
 is one of ``study.datasets`` at this scale, every arm of the loss-balancing study at the seeds of
 its base model (the compact 15L network with the arm's loss weighting; paper section III-C and
 beyond).
 
 Each run is planned here once, as one :class:`PlannedRun`: its ids, its recipe (the model's
-``train.models.<id>`` or the arm's, :meth:`~.core.config.Params.study_recipe`) and that recipe's
-params key, its epoch cap (:meth:`~.core.config.Params.max_epochs_of`), every path
+``train.models.<id>`` or the arm's, :meth:`~.core.params.Params.study_recipe`) and that recipe's
+params key, its epoch cap (:meth:`~.core.params.Params.max_epochs_of`), every path
 (:class:`.core.layout.RunPaths`) and what it writes besides its scores (ONNX, saved predictions).
 The stages hand it whole to their worker processes, the training loop and the evaluation
 (``training.train.train_run``, ``evaluate.evaluate_run``); nothing below re-derives any of it.
@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any, Optional
 
 from ..core import catalog
-from ..core.config import ModelRecipe
+from ..core.params import ModelRecipe
 from ..core.layout import STUDY_DIR, RunPaths, run_paths, study_paths
 
 __all__ = ["PlannedRun", "dataset_runs", "planned_run", "recipe_of"]

@@ -36,7 +36,7 @@ import numpy as np
 
 from ...core.classes import TAG
 from ...core.errors import RecordError
-from ...core.params_errors import cut
+from ...core.params.errors import cut
 from ..geometry import VIEWS
 from . import bev, convert
 from .conditions import weather_parameters

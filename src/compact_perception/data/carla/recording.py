@@ -31,7 +31,7 @@ import numpy as np
 
 from ...core import io
 from ...core.classes import BEV_NAMES, CARLA_NAMES
-from ...core.config import Params
+from ...core.params import Params
 from ...core.errors import RecordError
 from ..geometry import VIEWS
 from ..record import SPLITS, RecordSpec, load_record, validate_record

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from ...core.config import WorldParams
+from ...core.params import WorldParams
 from ..geometry import VIEWS, VIEW_YAW_DEG
 
 CAMERA_KINDS: dict[str, str] = {"rgb": "sensor.camera.rgb", "dvs": "sensor.camera.dvs",

@@ -11,7 +11,7 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
-from ...core.config import Params
+from ...core.params import Params
 from ..record import load_manifest, load_record
 from .recording import import_recording
 

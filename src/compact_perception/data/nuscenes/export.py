@@ -61,7 +61,7 @@ from PIL import Image
 from tqdm import tqdm
 
 from compact_perception.core.classes import NUSCENES_NAMES, TAG
-from compact_perception.core.config import TOWNS, CameraParams, LidarParams, Params, WorldParams
+from compact_perception.core.params import TOWNS, CameraParams, LidarParams, Params, WorldParams
 from compact_perception.data.geometry import VIEWS, topview_cell_centres
 from compact_perception.core.io import atomic_dir, write_bytes
 from compact_perception.data.nuscenes import LIDAR_CHANNEL, VIEW_CHANNELS

@@ -63,7 +63,7 @@ import numpy as np
 from tqdm import tqdm
 
 from compact_perception.core.classes import NUSCENES_NAMES
-from compact_perception.core.config import Params, PreprocessParams
+from compact_perception.core.params import Params, PreprocessParams
 from compact_perception.core.cache import write_cache
 from compact_perception.core.machine import bounded
 from compact_perception.data.geometry import VIEWS, topview_cell_centres, topview_index

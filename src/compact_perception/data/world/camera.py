@@ -12,7 +12,7 @@ import numpy as np
 
 from ...core.classes import CARLA_PALETTE, TAG
 from ...core.depth import DEPTH_FAR_M, DEPTH_LOG_K
-from ...core.config import CameraParams
+from ...core.params import CameraParams
 from ..geometry import VIEW_YAW_DEG
 from .conditions import TIMES, Condition, sun_vector
 from .raycast import Hits

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...core.config import ConditionParams
+from ...core.params import ConditionParams
 
 WEATHERS = ("sunny", "cloudy", "rainy", "foggy")
 #: time of day -> (sun elevation deg, sun azimuth deg, sun strength, ambient, sky RGB)

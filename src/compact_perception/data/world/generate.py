@@ -24,7 +24,7 @@ from tqdm import tqdm
 from ...core import io
 from ...core.catalog import sim_dataset_ids
 from ...core.classes import BEV_NAMES, CARLA_NAMES, CARLA_PALETTE, TAG, palette_to_index
-from ...core.config import TOWNS, Params, ParamsError, WorldParams
+from ...core.params import TOWNS, Params, ParamsError, WorldParams
 from ...core.errors import RunError
 from ...core.machine import bounded
 from ..geometry import VIEWS

@@ -10,7 +10,7 @@ import functools
 
 import numpy as np
 
-from ...core.config import LidarParams
+from ...core.params import LidarParams
 from .raycast import Scene, trace
 
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ...core.config import Params
+from ...core.params import Params
 from . import generate
 from .generate import iter_episodes, render_episode
 

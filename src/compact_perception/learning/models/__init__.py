@@ -6,9 +6,11 @@ the network, only the training differs), and the section V-D baselines `gradnorm
 `polarnet`, `chen_bev`. Dataset ids: `A`, `B`, `C` (23 SS/LS classes, 9 BEV classes, DVS) and
 `nuscenes` (32 classes for SS, LS and BEVP, no DVS).
 
-Each network module registers its own factory (``@register_network("<id>")``, :mod:`.base`);
-this package imports every module in it, so a new network is one new file, plus its model's
-entry in ``core/catalog.py`` and its recipe and id in params.yaml.
+A model's one registration is its ``catalog.MODELS`` entry (its id); the entry's ``network``
+names the module of this package whose ``build(spec, info)`` makes the network
+(:func:`.base.network_factory` checks it against the contract). This package imports every module
+in it, so a new network is one new file, plus its model's entry in ``core/catalog.py`` and its
+recipe and id in params.yaml (docs/extending.md).
 """
 from __future__ import annotations
 
@@ -19,15 +21,14 @@ from torch import nn
 
 from ...core import catalog
 from ...core.registry import import_submodules
-from .base import DATASET_SPECS, NETWORKS, DatasetSpec, register_network
+from .base import DATASET_SPECS, DatasetSpec, NetworkFactory, network_factory
 from .blocks import count_parameters
 
-import_submodules(__name__, __path__)  # each network module registers itself
-
-from .chen import ChenBEV  # noqa: E402
-from .compact import CompactPerception  # noqa: E402
-from .polarnet import PolarNet  # noqa: E402
-from .segnet import GradNormSegNet  # noqa: E402
+#: network (``catalog.ModelInfo.network``: a module of this package) -> its ``build``, every module
+#: of the package that defines one (imported here, in name order, each checked against the contract)
+NETWORKS: dict[str, NetworkFactory] = {name: network_factory(module)
+                                       for name, module in import_submodules(__name__, __path__).items()
+                                       if hasattr(module, "build")}
 
 #: model id -> its registry entry (catalog.MODELS: label, group, LiDAR channels, tasks, network)
 MODELS = catalog.MODELS
@@ -40,6 +41,9 @@ def build_model(model_id: str, dataset_id: str, tasks: Sequence[str] | None = No
     tasks, where its factory takes a ``tasks`` argument (the compact network: the study's
     single-task references); any other network raises ValueError."""
     info = MODELS[model_id]
+    if info.network not in NETWORKS:
+        raise KeyError(f"model {model_id}: no network module {info.network!r} in learning/models with a "
+                       f"build(spec, info) function; known: {sorted(NETWORKS)}")
     factory = NETWORKS[info.network]
     if tasks is None or tuple(tasks) == tuple(info.tasks):
         return factory(DATASET_SPECS[dataset_id], info)
@@ -55,5 +59,4 @@ def lidar_channels(model_id: str) -> int:
 
 __all__ = [
     "DATASET_SPECS", "MODELS", "NETWORKS", "DatasetSpec", "build_model", "count_parameters", "lidar_channels",
-    "register_network", "ChenBEV", "CompactPerception", "GradNormSegNet", "PolarNet",
 ]

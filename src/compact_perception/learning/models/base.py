@@ -1,17 +1,19 @@
-"""What every network module needs to register itself: the dataset specs and the network registry.
+"""What every network module needs: the dataset specs and the network contract.
 
-A network module registers its factory with ``@register_network("<id>")`` (the id that
-``catalog.ModelInfo.network`` names); :mod:`compact_perception.learning.models` imports every module of
-this package, so a new network is found without editing another file.
+A network is a module of :mod:`compact_perception.learning.models` whose ``build(spec, info)``
+function makes it; ``catalog.ModelInfo.network`` names that module, and the model's catalog entry
+is its one registration (no second id: the models package finds every module with a ``build``).
 
 The network contract is :class:`PerceptionNet` (what training, evaluation and the loss weightings
-use: ``tasks``, ``argmax_tasks``, ``forward``, ``compute_losses``, ``shared_layers``). A factory
-annotates its return with its network class; :func:`register_network` checks that class against
-the contract, so a network missing a member fails when its module is imported, not mid-training.
+use: ``tasks``, ``argmax_tasks``, ``forward``, ``compute_losses``, ``shared_layers``). ``build``
+annotates its return with its network class; :func:`network_factory` checks that class against
+the contract when the package imports the module, so a network missing a member fails then, not
+mid-training.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+from types import ModuleType
 from typing import Callable, ClassVar, Protocol
 
 from torch import Tensor, nn
@@ -20,8 +22,7 @@ from ...core import catalog
 from ...core.classes import BEV_NAMES, CARLA_NAMES, NUSCENES_NAMES
 from ...core.registry import Registry
 
-__all__ = ["DatasetSpec", "DATASET_SPECS", "NETWORKS", "NetworkFactory", "PerceptionNet", "contract_gaps",
-           "register_network"]
+__all__ = ["DatasetSpec", "DATASET_SPECS", "NetworkFactory", "PerceptionNet", "contract_gaps", "network_factory"]
 
 
 @dataclass(frozen=True)
@@ -83,30 +84,26 @@ def contract_gaps(cls: type) -> list[str]:
     return gaps
 
 
-#: a network's factory: (dataset spec, the model's registry entry) -> a fresh module
+#: a network's factory, its module's ``build``: (dataset spec, the model's catalog entry) -> a fresh module
 NetworkFactory = Callable[[DatasetSpec, catalog.ModelInfo], nn.Module]
 
-#: network id (catalog.ModelInfo.network) -> its factory
-NETWORKS: Registry[NetworkFactory] = Registry("network")
 
-
-def register_network(key: str) -> Callable[[NetworkFactory], NetworkFactory]:
-    """Decorator: ``@register_network("polarnet")`` makes the function the factory of network
-    ``polarnet`` (what ``catalog.ModelInfo.network`` names). The factory's return annotation names
-    its network class, which must meet :class:`PerceptionNet`; else a :class:`TypeError` names
-    the network and what it lacks."""
-
-    def deco(factory: NetworkFactory) -> NetworkFactory:
-        cls = factory.__annotations__.get("return")
-        if isinstance(cls, str):  # postponed annotation: the class named in the factory's module
-            cls = factory.__globals__.get(cls)
-        if cls is None:
-            raise TypeError(f"network {key!r}: its factory {factory.__qualname__} must annotate its return "
-                            "with the network class (the PerceptionNet contract is checked on it)")
-        gaps = contract_gaps(cls)
-        if gaps:
-            raise TypeError(f"network {key!r}: {getattr(cls, '__name__', cls)} does not meet the PerceptionNet "
-                            f"contract (models/base.py); it lacks: {', '.join(gaps)}")
-        return NETWORKS.register(key)(factory)
-
-    return deco
+def network_factory(module: ModuleType) -> NetworkFactory:
+    """The ``build`` function of network module ``module``. Its return annotation names the network
+    class, which must meet :class:`PerceptionNet`; else a :class:`TypeError` names the network (the
+    module's last name, what ``catalog.ModelInfo.network`` says) and what it lacks."""
+    name = module.__name__.rpartition(".")[2]
+    factory = getattr(module, "build", None)
+    if not callable(factory):
+        raise TypeError(f"network {name!r}: its module defines no build(spec, info) function")
+    cls = factory.__annotations__.get("return")
+    if isinstance(cls, str):  # postponed annotation: the class named in the factory's module
+        cls = factory.__globals__.get(cls)
+    if cls is None:
+        raise TypeError(f"network {name!r}: its factory {factory.__qualname__} must annotate its return "
+                        "with the network class (the PerceptionNet contract is checked on it)")
+    gaps = contract_gaps(cls)
+    if gaps:
+        raise TypeError(f"network {name!r}: {getattr(cls, '__name__', cls)} does not meet the PerceptionNet "
+                        f"contract (models/base.py); it lacks: {', '.join(gaps)}")
+    return factory

@@ -38,7 +38,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from ...core.catalog import ModelInfo
-from .base import DatasetSpec, register_network
+from .base import DatasetSpec
 from .blocks import losses_module
 
 Z1, Z2, FEAT = 32, 256, 256
@@ -196,7 +196,6 @@ class ChenBEV(nn.Module):
         return {}
 
 
-@register_network("chen_bev")
-def _build(ds: DatasetSpec, info: ModelInfo) -> ChenBEV:
+def build(ds: DatasetSpec, info: ModelInfo) -> ChenBEV:
     """Chen et al.'s BEV network (BEVP)."""
     return ChenBEV(ds.n_seg, ds.n_bev)

@@ -41,7 +41,7 @@ import torch
 from torch import Tensor, nn
 
 from ...core.catalog import ModelInfo
-from .base import DatasetSpec, register_network
+from .base import DatasetSpec
 from .blocks import ConvBlock, down, kaiming_init_, losses_module, up
 
 CH: tuple[int, int, int, int] = (16, 32, 64, 128)
@@ -181,8 +181,7 @@ class CompactPerception(nn.Module):
         return {t: list(w2 if t == "bevp" else w1) for t in self.tasks}
 
 
-@register_network("compact")
-def _build(ds: DatasetSpec, info: ModelInfo, tasks: Sequence[str] | None = None) -> CompactPerception:
+def build(ds: DatasetSpec, info: ModelInfo, tasks: Sequence[str] | None = None) -> CompactPerception:
     """The compact network of section III-A for a dataset (1 or 15 LiDAR channels, DVS or not);
     ``tasks`` builds it for a subset of its tasks (default all)."""
     return CompactPerception(ds.n_seg, ds.n_bev, lidar_channels=info.lidar_channels, has_dvs=ds.has_dvs,

@@ -22,7 +22,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from ...core.catalog import ModelInfo
-from .base import DatasetSpec, register_network
+from .base import DatasetSpec
 from .blocks import log_probs, losses_module
 
 
@@ -108,7 +108,6 @@ class PolarNet(nn.Module):
         return {}
 
 
-@register_network("polarnet")
-def _build(ds: DatasetSpec, info: ModelInfo) -> PolarNet:
+def build(ds: DatasetSpec, info: ModelInfo) -> PolarNet:
     """PolarNet (LS) on the model's LiDAR channels."""
     return PolarNet(ds.n_seg, in_ch=info.lidar_channels)

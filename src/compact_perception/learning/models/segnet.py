@@ -27,7 +27,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from ...core.catalog import ModelInfo
-from .base import DatasetSpec, register_network
+from .base import DatasetSpec
 from .blocks import log_probs, losses_module
 
 ENC_STAGES: tuple[tuple[int, ...], ...] = ((64, 64), (128, 128), (256, 256, 256), (512, 512, 512), (512, 512, 512))
@@ -111,7 +111,6 @@ class GradNormSegNet(nn.Module):
         return {"de": list(names), "ss": list(names)}
 
 
-@register_network("gradnorm_segnet")
-def _build(ds: DatasetSpec, info: ModelInfo) -> GradNormSegNet:
+def build(ds: DatasetSpec, info: ModelInfo) -> GradNormSegNet:
     """GradNorm's SegNet (DE + SS) on a dataset's views."""
     return GradNormSegNet(ds.n_seg, n_views=ds.n_views)

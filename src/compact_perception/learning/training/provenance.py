@@ -46,11 +46,15 @@ def _module_file(name: str, roots: dict[str, Path]) -> Optional[Path]:
 
 def _imports(name: str, path: Path) -> set[str]:
     """Every project module importing ``name`` (at ``path``) runs, lazy imports included, each with
-    the packages above it."""
+    the packages above it; a package that calls ``import_submodules`` (``core.registry``: the
+    model networks, the weighting methods) imports every module in its folder."""
     package = name if path.name == "__init__.py" else name.rpartition(".")[0]
     found: set[str] = set()
     for node in ast.walk(ast.parse(path.read_bytes(), str(path))):
-        if isinstance(node, ast.Import):
+        if (path.name == "__init__.py" and isinstance(node, ast.Call) and isinstance(node.func, ast.Name)
+                and node.func.id == "import_submodules"):
+            found.update(f"{name}.{p.stem}" for p in path.parent.glob("*.py") if p.name != "__init__.py")
+        elif isinstance(node, ast.Import):
             found.update(alias.name for alias in node.names)
         elif isinstance(node, ast.ImportFrom):
             if node.level:

@@ -17,7 +17,7 @@ import torch
 from torch import nn
 from torch.utils.data import DataLoader
 
-from ...core.config import Params
+from ...core.params import Params
 from ..plan import PlannedRun
 from ..weighting import LossWeighting
 from .distributed import Dist

@@ -45,7 +45,7 @@ import torch
 
 from . import distributed as ddp
 from ...core import catalog, io
-from ...core.config import Params
+from ...core.params import Params
 from ...core.determinism import release_torch_pins, resolve_device, set_determinism, set_threads
 from ...core.errors import RunError
 from ...core.layout import BEST_HASH_KEY
@@ -201,11 +201,12 @@ def _check_inputs(params: Params, run: PlannedRun, per_rank_batch: int) -> dict:
     from ...core.cache import CacheError, read_meta, read_split
 
     recipe, where, cache_dir = run.recipe, run.recipe_key, run.paths.cache_dir
-    compact = catalog.MODELS[run.model].group == "compact"
-    if compact and recipe.de_loss is None:
-        raise RunError(f"{where}.de_loss: required for a compact model (huber or smooth_l1)")
-    if not compact and recipe.de_loss is not None:
-        raise RunError(f"{where}.de_loss: only the compact models take it (a baseline keeps its own losses); "
+    group = catalog.MODELS[run.model].group
+    takes_de_loss = catalog.GROUPS[group].de_loss
+    if takes_de_loss and recipe.de_loss is None:
+        raise RunError(f"{where}.de_loss: required for a {group} model (huber or smooth_l1)")
+    if not takes_de_loss and recipe.de_loss is not None:
+        raise RunError(f"{where}.de_loss: a {group} model does not take it (it keeps its own losses); "
                        "remove the key (set it to null where the recipe inherits it from train.recipe)")
     weighting_settings(recipe, compiled=params.train.compile)
     meta = read_meta(cache_dir)
@@ -439,7 +440,7 @@ def _finish(run: RunState) -> dict:
         "final_weights": {k: v for k, v in (run.history[-1] if run.history else {}).items() if k.startswith("w_")},
         "digest": spec.digest,
     }
-    if planned.export_onnx and spec.dist.is_main and catalog.MODELS[planned.model].group == "compact":
+    if planned.export_onnx and spec.dist.is_main and catalog.group_of(planned.model).onnx:
         summary["onnx"] = _export_best(run)  # deployable, beside its checkpoint
     if spec.dist.is_main:
         run.live.end()

@@ -76,7 +76,7 @@ from typing import Any, Sequence
 from pydantic import ValidationError
 from torch import nn
 
-from ...core.config import ModelRecipe, ParamsError, Strict, format_error
+from ...core.params import ModelRecipe, ParamsError, Strict, format_error
 from ...core.registry import import_submodules
 from .base import WEIGHTINGS, LossWeighting, register, shared_weights
 
@@ -130,7 +130,7 @@ def weighting_class(key: str) -> type[LossWeighting]:
 def weighting_settings(recipe: ModelRecipe, source: str = "params.yaml", *, compiled: bool = False) -> Strict | None:
     """The settings of the recipe's weighting, its section validated by the method's ``params_model``
     (``None`` for a method without settings), checked before a stage writes anything. Bad input is a
-    :class:`~compact_perception.core.config.ParamsError` naming the key in ``source``, e.g.
+    :class:`~compact_perception.core.params.ParamsError` naming the key in ``source``, e.g.
     ``params.yaml: study.arms.uw.uw.lr: Input should be a valid number (got 'fast')``. ``compiled``
     (``train.compile``): a method that differentiates through the network's gradients
     (:meth:`~.base.LossWeighting.needs_double_backward`: MGN's authors update) is refused, since

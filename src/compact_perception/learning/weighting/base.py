@@ -7,7 +7,7 @@ import torch
 from torch import Tensor, nn
 
 from ...core.catalog import WEIGHTING_METHODS
-from ...core.config import Strict
+from ...core.params import Strict
 from ...core.errors import NonFinite
 from ...core.registry import Registry
 

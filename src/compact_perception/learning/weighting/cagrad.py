@@ -27,7 +27,7 @@ import torch
 from pydantic import Field
 from torch import Tensor, nn
 
-from ...core.config import Strict
+from ...core.params import Strict
 from .base import LossWeighting, register
 from .gradients import shared_gram, task_gradients, unweighted_total, write_combination
 

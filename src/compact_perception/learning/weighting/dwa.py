@@ -18,7 +18,7 @@ import torch
 from pydantic import Field
 from torch import Tensor, nn
 
-from ...core.config import Strict
+from ...core.params import Strict
 from .base import LossWeighting, register
 
 __all__ = ["DWAParams", "DWAWeighting"]

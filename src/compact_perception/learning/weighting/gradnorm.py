@@ -7,7 +7,7 @@ import torch
 from pydantic import Field
 from torch import Tensor
 
-from ...core.config import Strict
+from ...core.params import Strict
 from .base import register
 from .mgn import GradNormCore, finite_or_raise
 

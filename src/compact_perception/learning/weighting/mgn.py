@@ -13,7 +13,7 @@ from torch import Tensor, nn
 
 from pydantic import Field, model_validator
 
-from ...core.config import ModelRecipe, Strict, check_lr_floor
+from ...core.params import ModelRecipe, Strict, check_lr_floor
 from ...core.errors import NonFinite
 from ..schedule import PlateauRule, plateau_due
 from .base import LossWeighting, finite_or_raise, recipe_params, register, shared_weights

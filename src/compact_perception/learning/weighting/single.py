@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from typing import Any, Sequence
 
-from ...core.config import Strict
+from ...core.params import Strict
 from .base import LossWeighting, recipe_params, register
 
 __all__ = ["SingleTaskParams", "SingleTaskWeighting"]

@@ -18,34 +18,34 @@ section named after its weighting (``mgn: {...}``), validated by that method's o
 whole pipeline: set A's main ablation trained deep, the rest shallow), ``full`` (the same data,
 every dataset, model, seed and the study trained to the plateau: hours on a CPU) and ``paper``
 (the paper's frames, resolution and schedule: a GPU). Every value that differs between them is
-written as ``{default: ..., full: ..., paper: ...}`` (a :class:`Scaled`) and resolved with
-:meth:`Scaled.at`.
+written as ``{default: ..., full: ..., paper: ...}`` (a :class:`Scaled`), resolved once when the
+params load (``Params``' accessors; :func:`.base.resolve_scale` is the one resolver).
 
 How deep a run trains is its dataset's ``training`` (:class:`TrainingBudget`: the compact
 models' seeds and the epoch cap; a recipe's own ``max_epochs`` overrides the cap): early stopping
 (``train.early_stop_patience``) ends a run when validation stops improving, the cap only bounds it.
 
-This module is the schema's one import point (callers import from here); it is split by concern:
-:mod:`.params_base` (``Strict``, ``Scaled``, the count bounds), :mod:`.recipe` (a model's recipe
-and its merging), :mod:`.params_schema` (the sections and ``Params``), :mod:`.params_errors`
-(``ParamsError`` and its one-line messages) and :mod:`.params_file` (reading the file).
+This package holds the params, one module per concern, and this module is its one import point
+(callers import from here): :mod:`.base` (``Strict``, ``Scaled`` and the one resolver of
+``scale``, the count bounds), :mod:`.recipe` (a model's recipe and its merging), :mod:`.schema`
+(the sections and ``Params``), :mod:`.errors` (``ParamsError`` and its one-line messages),
+:mod:`.file` (reading the file) and :mod:`.audit` (which keys a stage reads).
 """
 from __future__ import annotations
 
-from .params_base import (MAX_BATCH, MAX_FRAMES, MAX_SAVED_PREDICTIONS, MAX_SCENES, MAX_WORKERS, SCALES,
-                          ScaleName, Scaled, Strict)
-from .params_errors import ParamsError, format_error
-from .params_file import (MAX_PARAMS_BYTES, MAX_PARAMS_VALUES, DuplicateKeyError, ExpansionError, UniqueKeyLoader,
-                          load_params)
-from .params_schema import (DATASET_IDS, TOWNS, AuthorsSplits, BenchmarkParams, CameraParams, CarlaSource,
-                            ConditionParams, DatasetsParams, DvsParams, EvalParams, LidarParams, NuScenesParams,
-                            Params, PreprocessParams, SimDatasetParams, SplitRatio, StudyParams, TrainingBudget,
-                            TrainParams, WorldParams, parse_params)
+from .base import (MAX_BATCH, MAX_FRAMES, MAX_SAVED_PREDICTIONS, MAX_SCENES, MAX_WORKERS, SCALES, ScaleName, Scaled,
+                   Strict, resolve_scale)
+from .errors import ParamsError, format_error
+from .file import MAX_PARAMS_BYTES, MAX_PARAMS_VALUES, DuplicateKeyError, ExpansionError, UniqueKeyLoader, load_params
+from .schema import (DATASET_IDS, TOWNS, AuthorsSplits, BenchmarkParams, CameraParams, CarlaSource, ConditionParams,
+                     DatasetsParams, DvsParams, EvalParams, LidarParams, NuScenesParams, Params, PreprocessParams,
+                     SimDatasetParams, SplitRatio, StudyParams, TrainingBudget, TrainParams, WorldParams, parse_params)
 from .recipe import ModelRecipe, check_lr_floor, merge_recipe
 
 __all__ = [
     "Strict", "Scaled", "ScaleName", "SCALES", "MAX_FRAMES", "MAX_SCENES", "MAX_WORKERS", "MAX_BATCH",
-    "MAX_SAVED_PREDICTIONS", "ParamsError", "format_error", "load_params", "parse_params", "UniqueKeyLoader",
+    "MAX_SAVED_PREDICTIONS", "resolve_scale", "ParamsError", "format_error", "load_params", "parse_params",
+    "UniqueKeyLoader",
     "DuplicateKeyError", "ExpansionError", "MAX_PARAMS_BYTES", "MAX_PARAMS_VALUES", "DATASET_IDS", "TOWNS",
     "AuthorsSplits", "BenchmarkParams",
     "CameraParams", "CarlaSource", "ConditionParams", "DatasetsParams", "DvsParams", "EvalParams", "LidarParams",

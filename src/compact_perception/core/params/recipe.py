@@ -8,8 +8,8 @@ from typing import Any, Callable, Literal, Optional
 from pydantic import ConfigDict, Field, PrivateAttr, ValidationError, field_validator, model_validator
 from pydantic_core import InitErrorDetails, PydanticCustomError
 
-from .params_base import Scaled, Strict, _scaled_at_least
-from .params_errors import _in_params
+from .base import Scaled, Strict, _scaled_at_least
+from .errors import _in_params
 
 __all__ = ["ModelRecipe", "merge_recipe", "check_lr_floor"]
 

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import yaml
 
-from .params_errors import ParamsError, _one_line
-from .params_schema import Params, parse_params
+from .errors import ParamsError, _one_line
+from .schema import Params, parse_params
 
 __all__ = ["load_params", "UniqueKeyLoader", "DuplicateKeyError", "ExpansionError", "MAX_PARAMS_BYTES",
            "MAX_PARAMS_VALUES"]

@@ -1,14 +1,15 @@
-"""The building blocks of the params schema (:mod:`compact_perception.core.config`): the strict
+"""The building blocks of the params schema (:mod:`compact_perception.core.params`): the strict
 base model every section derives from, the per-scale value (:class:`Scaled`) and its checks, and
 the upper bounds of the counts that size memory, processes or disk."""
 from __future__ import annotations
 
-from typing import Generic, Literal, Optional, TypeVar
+from typing import Any, Generic, Literal, Optional, TypeVar
 
 from pydantic import BaseModel, ConfigDict
 from pydantic_core import PydanticCustomError
 
-__all__ = ["Strict", "Scaled", "ScaleName", "SCALES", "MAX_FRAMES", "MAX_SCENES", "MAX_WORKERS", "MAX_BATCH",
+__all__ = ["Strict", "Scaled", "ScaleName", "SCALES", "resolve_scale", "MAX_FRAMES", "MAX_SCENES", "MAX_WORKERS",
+           "MAX_BATCH",
            "MAX_SAVED_PREDICTIONS"]
 
 T = TypeVar("T")
@@ -40,6 +41,20 @@ class Scaled(Strict, Generic[T]):
         can import, and a stage hands its params whole to spawned worker processes
         (``training.parallel``). Unpickled, it is the same class with the same state, not re-validated."""
         return _parametrised, (self.__pydantic_generic_metadata__["args"],), self.__getstate__()
+
+
+def resolve_scale(value: Any, scale: str) -> Any:
+    """The one resolver of ``scale``: ``value`` (plain params data, as in params.yaml or a model's
+    dump) with every per-scale mapping (exactly the keys of :data:`SCALES`) replaced by its value
+    at ``scale``. ``Params`` applies it once when it loads (its accessors read the result); a
+    record's dumped settings are read through it at ``full`` (``core.plateau_record``)."""
+    if isinstance(value, dict):
+        if value and set(value) == set(SCALES):
+            return resolve_scale(value[scale], scale)
+        return {k: resolve_scale(v, scale) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [resolve_scale(v, scale) for v in value]
+    return value
 
 
 def _parametrised(args: tuple) -> Scaled:

@@ -1,17 +1,18 @@
 """The sections of params.yaml and the whole file (:class:`Params`), validated by
-:func:`parse_params` (see :mod:`compact_perception.core.config` for the rules)."""
+:func:`parse_params` (see :mod:`compact_perception.core.params` for the rules)."""
 from __future__ import annotations
 
 from pathlib import Path
 from typing import Any, Callable, Literal, Optional, Union
 
-from pydantic import Field, ValidationError, ValidatorFunctionWrapHandler, field_validator, model_validator
+from pydantic import Field, PrivateAttr, ValidationError, ValidatorFunctionWrapHandler, field_validator, model_validator
 from pydantic_core import PydanticCustomError
 
-from . import catalog
-from .params_base import (MAX_BATCH, MAX_FRAMES, MAX_SAVED_PREDICTIONS, MAX_SCENES, MAX_WORKERS, SCALES,
-                          ScaleName, Scaled, Strict, _scaled_at_least, _scaled_at_most, _scaled_distinct_seeds)
-from .params_errors import ParamsError, _format, _in_params
+from .. import catalog
+from .base import (MAX_BATCH, MAX_FRAMES, MAX_SAVED_PREDICTIONS, MAX_SCENES, MAX_WORKERS, SCALES,
+                          ScaleName, Scaled, Strict, _scaled_at_least, _scaled_at_most, _scaled_distinct_seeds,
+                          resolve_scale)
+from .errors import ParamsError, _format, _in_params
 from .recipe import ModelRecipe, _from_base, _inherited, _plain, merge_recipe
 
 TOWNS = ("town01", "town02", "town03", "town04", "town05")
@@ -466,32 +467,50 @@ class Params(Strict):
             raise ParamsError(_format(err, source, lambda loc: _in_params(loc, key, inherited))) from None
         return recipe.placed(key, inherited)
 
-    # The values of this file's ``scale``. ``scale`` is resolved here, where params load, and
-    # nowhere below: a module reads a per-scale value (:class:`Scaled`) through these, never with
-    # ``.at(params.scale)`` (tests/test_layers.py holds it).
+    # The values of this file's ``scale``. ``scale`` is resolved once, here, when params load
+    # (:meth:`model_post_init`: every per-scale value of the file at its scale, by the one
+    # resolver ``resolve_scale``), and nowhere below: a module reads a per-scale value through
+    # these, never with ``.at(params.scale)`` (tests/test_layers.py holds it).
+
+    _at_scale: dict = PrivateAttr(default_factory=dict)
+
+    def model_post_init(self, context: Any) -> None:
+        """Resolve ``scale`` once: the whole file's values at its scale, which the accessors read."""
+        self._at_scale = resolve_scale(self.model_dump(mode="python"), self.scale)
+
+    def model_copy(self, *, update: Optional[dict[str, Any]] = None, deep: bool = False) -> "Params":
+        """A copy (pydantic's), its values at its scale resolved again: ``update`` may change the
+        scale or a section (benchmarks do)."""
+        copy = super().model_copy(update=update, deep=deep)
+        copy.model_post_init(None)
+        return copy
+
+    def _section_at_scale(self, dataset: str) -> dict[str, Any]:
+        self.dataset(dataset)  # an unknown id is one line
+        return self._at_scale["datasets"][dataset]
 
     @property
     def resolution(self) -> int:
         """``world.resolution`` at this scale: the side S of every image and top view (px)."""
-        return self.world.resolution.at(self.scale)
+        return self._at_scale["world"]["resolution"]
 
     def frames_of(self, dataset: str) -> int:
         """``datasets.<ds>.frames`` at this scale (a simulated set's frames in all splits)."""
-        return self.dataset(dataset).frames.at(self.scale)
+        return self._section_at_scale(dataset)["frames"]
 
     def split_counts_of(self, dataset: str) -> dict[str, int]:
         """Frames per split of a simulated set at this scale (``split_ratio`` applied to ``frames``)."""
-        return self.dataset(dataset).split_ratio.at(self.scale).counts(self.frames_of(dataset))
+        return SplitRatio(**self._section_at_scale(dataset)["split_ratio"]).counts(self.frames_of(dataset))
 
     @property
     def study_datasets(self) -> list[str]:
         """``study.datasets`` at this scale: the datasets the loss-balancing study runs on."""
-        return list(self.study.datasets.at(self.scale))
+        return list(self._at_scale["study"]["datasets"])
 
     @property
     def nuscenes_sim_scenes(self) -> int:
         """``datasets.nuscenes.sim_scenes`` at this scale (scenes of the simulated nuScenes set)."""
-        return self.datasets.nuscenes.sim_scenes.at(self.scale)
+        return self._at_scale["datasets"]["nuscenes"]["sim_scenes"]
 
     def patience_of(self, recipe: ModelRecipe) -> int:
         """A run's early-stopping patience at this scale (the recipe's ``early_stop_patience``)."""
@@ -499,12 +518,13 @@ class Params(Strict):
 
     def seeds_of(self, group: str, dataset: str, scale: Optional[ScaleName] = None) -> list[int]:
         """The training seeds of a model group (``catalog.ModelInfo.group``) on ``dataset`` at
-        ``scale`` (default: this file's): ``datasets.<ds>.training.seeds`` for ``compact``,
-        ``baseline_seeds`` for ``baseline``."""
-        if group not in ("compact", "baseline"):
-            raise ValueError(f"unknown model group {group!r}; known: compact, baseline")
-        seeds = self.dataset(dataset).training.seeds if group == "compact" else self.baseline_seeds
-        return list(seeds.at(scale or self.scale))
+        ``scale`` (default: this file's), by the group's rule (``catalog.GROUPS``):
+        ``datasets.<ds>.training.seeds`` for ``compact``, ``baseline_seeds`` for ``baseline``."""
+        if catalog.GROUPS[group].seeds == "dataset":
+            if scale is None or scale == self.scale:
+                return list(self._section_at_scale(dataset)["training"]["seeds"])
+            return list(self.dataset(dataset).training.seeds.at(scale))
+        return list(self._at_scale["baseline_seeds"] if scale in (None, self.scale) else self.baseline_seeds.at(scale))
 
     def max_epochs_of(self, recipe: ModelRecipe, dataset: str, scale: Optional[ScaleName] = None) -> int:
         """The epoch cap of a run of ``recipe`` on ``dataset``: the recipe's own ``max_epochs`` where
