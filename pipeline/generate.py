@@ -1,10 +1,10 @@
 """Stage generate@<ds>: the dataset's ``data/raw/<ds>/`` and the example frame
 ``reports/figures/world_<ds>.png`` (SPEC 3.1).
 
-Thin wrapper: parse args, load params, look ``datasets.<ds>.source`` up
+Thin wrapper: parse args, load params, look ``datasets.<ds>.source.id`` up
 (:mod:`compact_perception.data.sources`) and call it: ``sim`` renders the set with the embedded world,
 ``authors`` checks the authors' release and writes a manifest pointing at it, ``carla`` checks the
-recording at ``datasets.<ds>.carla.root`` (pipeline.collect_carla) and copies it into data/raw/<ds>.
+recording at ``datasets.<ds>.source.root`` (pipeline.collect_carla) and copies it into data/raw/<ds>.
 """
 from __future__ import annotations
 
@@ -30,7 +30,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--figure-dir", default="reports/figures")
     args = ap.parse_args(argv)
     params = start(args.params, workers=("world.workers",))
-    source = data_source(getattr(params.datasets, args.dataset).source)
+    source = data_source(params.dataset(args.dataset).source.id)
     out = Path(args.out) / args.dataset
     figure = Path(args.figure_dir) / f"world_{args.dataset}.png"
     try:

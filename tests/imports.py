@@ -50,12 +50,17 @@ def _module_name(root: Path, path: Path) -> str:
 
 def module_imports(root: Path, path: Path) -> set[str]:
     """Every module importing the file at ``path`` runs (lazy imports included; a third-party
-    module by its name too), each with the packages above it (``a.b.c`` runs ``a`` and ``a.b``)."""
+    module by its name too), each with the packages above it (``a.b.c`` runs ``a`` and ``a.b``);
+    a package that calls ``import_submodules`` (the model networks, the data sources, the
+    weighting methods) runs every module in its folder."""
     name = _module_name(root, path)
     package = name if path.name == "__init__.py" else name.rpartition(".")[0]
     found: set[str] = set()
     for node in ast.walk(ast.parse(path.read_text(), str(path))):
         found.update(import_targets(node, package))
+        if (path.name == "__init__.py" and isinstance(node, ast.Call) and isinstance(node.func, ast.Name)
+                and node.func.id == "import_submodules"):
+            found.update(f"{name}.{p.stem}" for p in path.parent.glob("*.py") if p.name != "__init__.py")
     out: set[str] = set()
     for mod in found:
         parts = mod.split(".")

@@ -70,3 +70,21 @@ def set_seeds(d: dict, seeds: list[int], baseline_seeds: list[int] | None = None
         ds["training"]["seeds"] = scaled(list(seeds))
     d["baseline_seeds"] = scaled(list(baseline_seeds if baseline_seeds is not None else seeds))
     return d
+
+
+def docs_params_block(doc: str, contains: str) -> dict:
+    """The first ```yaml block of ``docs/<doc>`` that contains ``contains``, parsed: a params
+    snippet a page tells the user to write (the tests use it as written there)."""
+    import re
+
+    text = (ROOT / "docs" / doc).read_text()
+    for block in re.findall(r"```yaml\n(.*?)```", text, flags=re.S):
+        if contains in block:
+            return yaml.safe_load(block)
+    raise AssertionError(f"docs/{doc}: no yaml block with {contains!r}")
+
+
+def carla_source(**changes: Any) -> dict:
+    """``datasets.<ds>.source`` of a CARLA recording as docs/carla.md shows it, with ``changes``."""
+    source = docs_params_block("carla.md", "id: carla")["datasets"]["A"]["source"]
+    return {**source, **changes}

@@ -23,8 +23,14 @@ from compact_perception.core.params import ParamsError, parse_params
 from compact_perception.core.errors import RecordError
 from pipeline import generate as generate_stage
 from pipeline import preprocess as preprocess_stage
+from repo_params import docs_params_block
 
 DEFAULT_SPLITS = {"A": ("Tr1", "Va2", "Te2"), "B": ("Tr2", "Va1", "Te1"), "C": ("Tr12345", "Va12345", "Te12345")}
+
+
+def authors_source(ds: str, root: str | Path) -> dict:
+    """``datasets.<ds>.source`` of the authors' release as docs/data-formats.md shows it, at ``root``."""
+    return {**docs_params_block("data-formats.md", "id: authors")["datasets"][ds]["source"], "root": str(root)}
 
 
 @pytest.fixture(scope="module")
@@ -40,8 +46,8 @@ def copy(release: Path, tmp_path: Path) -> Path:
 
 
 def write_params(params_dict: dict, tmp_path: Path, root: Path, ds: str = "A", resolution: int = 128) -> Path:
-    """A params file in tmp_path with ``datasets.<ds>.source: authors``."""
-    params_dict["datasets"][ds].update({"source": "authors", "authors_root": str(root)})
+    """A params file in tmp_path with ``datasets.<ds>.source`` the authors' release at ``root``."""
+    params_dict["datasets"][ds]["source"] = authors_source(ds, root)
     params_dict["world"]["resolution"][params_dict["scale"]] = resolution
     params_dict["preprocess"]["workers"] = 2
     pf = tmp_path / "params.yaml"
@@ -74,20 +80,25 @@ def stage_error(stage: str, pf: Path, tmp_path: Path, ds: str = "A") -> str:
 
 
 # ----------------------------------------------------------------------------- params
-def test_params_name_the_papers_split_folders(params_dict: dict) -> None:
+def test_the_docs_name_the_papers_split_folders(params_dict: dict) -> None:
+    """docs/data-formats.md's sources load as written, each with the paper's split folders."""
+    for ds in DEFAULT_SPLITS:
+        params_dict["datasets"][ds]["source"] = authors_source(ds, "/data/dataset")
     p = parse_params(params_dict)
     for ds, (tr, va, te) in DEFAULT_SPLITS.items():
-        sp = getattr(p.datasets, ds).authors_splits
-        assert (sp.train, sp.val, sp.test) == (tr, va, te)
+        src = getattr(p.datasets, ds).source
+        assert (src.id, src.root, src.splits.train, src.splits.val, src.splits.test) == \
+            ("authors", "/data/dataset", tr, va, te)
 
 
 def test_authors_splits_is_required_and_checked(params_dict: dict) -> None:
     bad = json.loads(json.dumps(params_dict))
-    del bad["datasets"]["B"]["authors_splits"]
-    with pytest.raises(ParamsError, match=r"datasets\.B\.authors_splits"):
+    bad["datasets"]["B"]["source"] = {"id": "authors", "root": "/data/dataset"}
+    with pytest.raises(ParamsError, match=r"datasets\.B\.source\.splits: Field required"):
         parse_params(bad)
-    params_dict["datasets"]["A"]["authors_splits"]["val"] = "../Va2"
-    with pytest.raises(ParamsError, match=r"datasets\.A\.authors_splits\.val"):
+    params_dict["datasets"]["A"]["source"] = authors_source("A", "/data/dataset")
+    params_dict["datasets"]["A"]["source"]["splits"]["val"] = "../Va2"
+    with pytest.raises(ParamsError, match=r"datasets\.A\.source\.splits\.val"):
         parse_params(params_dict)
 
 
@@ -103,7 +114,8 @@ def test_no_import_cycle(root: Path) -> None:
 # ----------------------------------------------------------------------------- the three sets
 @pytest.mark.parametrize("ds", ["A", "B", "C"])
 def test_default_splits_of_each_set(ds: str, release: Path, params_dict: dict) -> None:
-    plan = plan_authors(release, parse_params(params_dict).datasets.__getattribute__(ds).authors_splits, ds)
+    params_dict["datasets"][ds]["source"] = authors_source(ds, release)
+    plan = plan_authors(release, parse_params(params_dict).dataset(ds).source.splits, ds)
     tr, va, te = DEFAULT_SPLITS[ds]
     assert plan.splits["train"].ids == tuple(fx.split_list(tr)) and plan.splits["train"].frame_dir == release / "TrSet"
     assert plan.splits["val"].ids == tuple(fx.split_list(va)) and plan.splits["val"].frame_dir == release / "VaSet"
@@ -210,7 +222,7 @@ def test_split_folder_without_yml(copy: Path, params_dict: dict, tmp_path: Path)
     pf = write_params(params_dict, tmp_path, copy, "B")
     for stage in ("preprocess", "generate"):
         msg = stage_error(stage, pf, tmp_path, "B")
-        assert msg.startswith(f"error: {copy / 'Va1' / 'data_info.yml'}: file not found") and "authors_splits.val" in msg
+        assert msg.startswith(f"error: {copy / 'Va1' / 'data_info.yml'}: file not found") and "source.splits.val" in msg
 
 
 def test_missing_frame_file(copy: Path, params_dict: dict, tmp_path: Path) -> None:
@@ -258,4 +270,4 @@ def test_missing_authors_root(params_dict: dict, tmp_path: Path) -> None:
     pf = write_params(params_dict, tmp_path, tmp_path / "nowhere" / "dataset", "C")
     for stage in ("generate", "preprocess"):
         msg = stage_error(stage, pf, tmp_path, "C")
-        assert msg.startswith("error: datasets.C.authors_root: ") and "is not a directory" in msg
+        assert msg.startswith("error: datasets.C.source.root: ") and "is not a directory" in msg

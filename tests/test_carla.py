@@ -26,6 +26,7 @@ from compact_perception.core.classes import BEV_NAMES, CARLA_PALETTE, TAG
 from compact_perception.core.params import ParamsError, load_params
 from compact_perception.core.errors import RecordError
 from compact_perception.data.geometry import topview_center, topview_index
+from repo_params import carla_source
 from compact_perception.data.preprocess import preprocess_sim
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -175,8 +176,8 @@ def small_params(tmp_path, params_dict):
     a = params_dict["datasets"]["A"]
     a["frames"]["default"] = 5
     a["split_ratio"]["default"] = {"train": 3, "val": 1, "test": 1}
-    a["carla"].update(root=str(tmp_path / "rec"), frames_per_episode=2, warmup_ticks=1, vehicles=2, pedestrians=1,
-                      timeout_s=0.2)
+    a["source"] = carla_source(root=str(tmp_path / "rec"), frames_per_episode=2, warmup_ticks=1, vehicles=2,
+                               pedestrians=1, timeout_s=0.2)
     path = tmp_path / "params.yaml"
     path.write_text(yaml.safe_dump(params_dict))
     return path
@@ -202,14 +203,14 @@ def test_missing_client_and_version_mismatch_and_missing_town(small_params, monk
         connect(mod, "127.0.0.1", 2000, 1.0)
     mod = carla_fake.make_module(maps=("Town01",))
     with pytest.raises(CarlaError, match=r"has no map Town02 \(it has Town01\)"):
-        collect(mod, p, "A", p.datasets.A.carla.root, "127.0.0.1", 2000)
-    assert not Path(p.datasets.A.carla.root).exists()
+        collect(mod, p, "A", p.datasets.A.source.root, "127.0.0.1", 2000)
+    assert not Path(p.datasets.A.source.root).exists()
 
 
 def test_collect_writes_a_raw_set_that_preprocess_reads(small_params, tmp_path):
     p = load_params(small_params)
     mod = carla_fake.make_module()
-    root = Path(p.datasets.A.carla.root)
+    root = Path(p.datasets.A.source.root)
     assert collect(mod, p, "A", str(root), "127.0.0.1", 2000) == 5
     man = json.loads((root / "manifest.json").read_text())
     assert {s: len(v) for s, v in man["splits"].items()} == {"train": 3, "val": 1, "test": 1}
@@ -234,7 +235,7 @@ def test_collect_writes_a_raw_set_that_preprocess_reads(small_params, tmp_path):
 
 def test_a_silent_sensor_fails_and_the_rerun_resumes(small_params):
     p = load_params(small_params)
-    root = Path(p.datasets.A.carla.root)
+    root = Path(p.datasets.A.source.root)
     mod = carla_fake.make_module(fail={"frame": 108, "sensor": "sensor.camera.rgb"})
     with pytest.raises(CarlaError, match=r"carla: sensor rgb_f delivered nothing for simulation frame \d+ within 0\.2 s"):
         collect(mod, p, "A", str(root), "127.0.0.1", 2000)
@@ -249,7 +250,7 @@ def test_a_silent_sensor_fails_and_the_rerun_resumes(small_params):
 
 def test_resume_removes_frames_of_an_unfinished_episode_and_a_changed_plan_needs_restart(small_params):
     p = load_params(small_params)
-    root = Path(p.datasets.A.carla.root)
+    root = Path(p.datasets.A.source.root)
     rec = Recording(root, "A", plan_document(p, "A"))
     assert len(rec.open()) == 4
     (root / "frames").mkdir()
@@ -266,7 +267,7 @@ def test_resume_removes_frames_of_an_unfinished_episode_and_a_changed_plan_needs
 
 def test_generate_checks_the_recording(small_params, tmp_path):
     p = load_params(small_params)
-    root = Path(p.datasets.A.carla.root)
+    root = Path(p.datasets.A.source.root)
     with pytest.raises(RecordError, match="not a directory.*collect_carla --dataset A"):
         check_recording(p, "A", root)
     root.mkdir()
@@ -275,7 +276,7 @@ def test_generate_checks_the_recording(small_params, tmp_path):
     collect(carla_fake.make_module(), p, "A", str(root), "127.0.0.1", 2000)
     q = load_params(small_params).model_copy(deep=True)
     d = yaml.safe_load(small_params.read_text())
-    d["datasets"]["A"]["carla"]["vehicles"] = 3
+    d["datasets"]["A"]["source"]["vehicles"] = 3
     other = tmp_path / "other.yaml"
     other.write_text(yaml.safe_dump(d))
     with pytest.raises(RecordError, match="settings.vehicles differs"):
@@ -305,31 +306,37 @@ def test_sensor_queues_collect_dvs_events_without_waiting():
 
 
 def test_params_carla_source(params_dict, tmp_path):
-    params_dict["datasets"]["B"]["source"] = "carla"
-    params_dict["datasets"]["B"]["carla"]["root"] = "data/raw/B"
+    """docs/carla.md's source section loads as written; a recording folder inside data/raw, or a key
+    of another source, is one line naming the key; a sim set is not recorded."""
+    params_dict["datasets"]["B"]["source"] = carla_source(root="data/raw/B")
     path = tmp_path / "p.yaml"
     path.write_text(yaml.safe_dump(params_dict))
-    with pytest.raises(ParamsError, match="datasets.B.carla.root"):
+    with pytest.raises(ParamsError, match=r"datasets\.B\.source\.root: Value error, 'data/raw/B' is inside data/raw"):
         load_params(path)
-    params_dict["datasets"]["B"]["carla"]["root"] = "recordings/B"
+    params_dict["datasets"]["B"]["source"] = carla_source(root="recordings/B", splits={"train": "Tr1"})
     path.write_text(yaml.safe_dump(params_dict))
-    assert load_params(path).datasets.B.source == "carla"
+    with pytest.raises(ParamsError, match=r"datasets\.B\.source\.splits: unknown key"):
+        load_params(path)
+    params_dict["datasets"]["B"]["source"] = carla_source(root="recordings/B")
+    path.write_text(yaml.safe_dump(params_dict))
+    p = load_params(path)
+    assert p.datasets.B.source.id == "carla" and p.datasets.B.source.root == "recordings/B"
+    from compact_perception.data.carla.recording import carla_settings
+    with pytest.raises(ParamsError, match=r"^datasets\.A\.source\.id is 'sim': recording from CARLA needs "):
+        carla_settings(p, "A")
 
 
 def test_generate_stage_with_source_carla(small_params, tmp_path):
     from pipeline import generate
 
     p = load_params(small_params)
-    collect(carla_fake.make_module(), p, "A", p.datasets.A.carla.root, "127.0.0.1", 2000)
-    d = yaml.safe_load(small_params.read_text())
-    d["datasets"]["A"]["source"] = "carla"
-    small_params.write_text(yaml.safe_dump(d))
+    collect(carla_fake.make_module(), p, "A", p.datasets.A.source.root, "127.0.0.1", 2000)
     out, figures = tmp_path / "raw", tmp_path / "figures"
     assert generate.main(["--dataset", "A", "--params", str(small_params), "--out", str(out),
                           "--figure-dir", str(figures)]) == 0
     assert json.loads((out / "A" / "manifest.json").read_text())["source"] == "carla"
     assert len(list((out / "A" / "frames").glob("*.npz"))) == 5 and (figures / "world_A.png").is_file()
-    (Path(p.datasets.A.carla.root) / "manifest.json").unlink()
+    (Path(p.datasets.A.source.root) / "manifest.json").unlink()
     with pytest.raises(SystemExit, match=r"^error: .*incomplete \(no manifest.json\)"):
         generate.main(["--dataset", "A", "--params", str(small_params), "--out", str(out), "--figure-dir", str(figures)])
 
@@ -371,7 +378,7 @@ def test_a_client_time_out_is_one_line_naming_step_host_and_port_and_the_rerun_r
     synchronous mode off; on disk what the documented resume expects (the plan, the complete
     episodes, no manifest), and the same command completes the set."""
     p = load_params(small_params)
-    root = Path(p.datasets.A.carla.root)
+    root = Path(p.datasets.A.source.root)
     mod = carla_fake.make_module(**knobs)
     msg = _run_collector(small_params, mod)
     assert re.fullmatch(rf"error: carla: {step} at 127\.0\.0\.1:2000: time-out of 200ms while waiting for the "
@@ -402,12 +409,12 @@ def test_load_world_runs_under_its_own_longer_time_out(small_params, tmp_path):
     assert slow.Client.instances[0].load_timeouts == [120.0, 120.0]  # Town01, then Town02
     assert slow.Client.instances[0].timeout == 0.2                    # the tick's own time-out again
     d = yaml.safe_load(small_params.read_text())
-    d["datasets"]["A"]["carla"].update(root=str(tmp_path / "rec2"), load_world_timeout_s=0.5)
+    d["datasets"]["A"]["source"].update(root=str(tmp_path / "rec2"), load_world_timeout_s=0.5)
     small_params.write_text(yaml.safe_dump(d))
     msg = _run_collector(small_params, carla_fake.make_module(load_seconds=1.0))
     assert msg == ("error: carla: load_world Town01 (time-out 0.5 s) at 127.0.0.1:2000: time-out of 500ms while "
                    "waiting for the simulator, make sure the simulator is ready and connected to 127.0.0.1:2000; a "
-                   "map that loads slower needs a longer datasets.A.carla.load_world_timeout_s")
+                   "map that loads slower needs a longer datasets.A.source.load_world_timeout_s")
     assert not (tmp_path / "rec2" / "manifest.json").exists()
 
 
@@ -427,5 +434,5 @@ def test_a_walker_the_navigation_mesh_gives_no_place_to_go_stands(small_params):
     sent to None (the real client's ArgumentError); now it stands where it was spawned."""
     p = load_params(small_params)
     mod = carla_fake.make_module(navigation_none=2)                   # every second call: no place
-    assert collect(mod, p, "A", p.datasets.A.carla.root, "127.0.0.1", 2000) == 5
+    assert collect(mod, p, "A", p.datasets.A.source.root, "127.0.0.1", 2000) == 5
     _stopped_before_destroyed(mod.Client.instances[0].world)

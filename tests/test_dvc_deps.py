@@ -93,3 +93,22 @@ def test_closure_follows_lazy_and_relative_imports(tmp_path):
     assert found == {"pipeline/__init__.py", "pipeline/stage.py", "src/compact_perception/__init__.py",
                      "src/compact_perception/sub/__init__.py", "src/compact_perception/sub/thing.py",
                      "src/compact_perception/leaf.py"}
+
+
+def test_each_data_source_registration_names_its_stage_deps():
+    """A data source's registration (core/params/sources.py) names the code its module runs beyond
+    the shared data modules: the generate and preprocess stages list each of those and the
+    data/sources folder, and the source's module does import each (the registration is true)."""
+    from compact_perception.core.params import SOURCES
+
+    stages = _stages()
+    for key in SOURCES.keys():
+        module = ROOT / "src" / "compact_perception" / "data" / "sources" / f"{key}.py"
+        closure = import_closure(ROOT, module)
+        for dep in SOURCES[key].deps:
+            assert (ROOT / dep).exists(), f"source {key}: dep {dep} does not exist"
+            assert any(_covered(p, [dep]) for p in closure), f"source {key}: its module does not import {dep}"
+            for stage in ("generate", "preprocess"):
+                assert dep in _code_deps(stages[stage]), f"stage {stage} does not list source {key}'s dep {dep}"
+    for stage in ("generate", "preprocess"):
+        assert "src/compact_perception/data/sources" in _code_deps(stages[stage])

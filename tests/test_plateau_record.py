@@ -73,6 +73,18 @@ def test_changed_settings_name_what_todays_params_change() -> None:
     assert changed_settings(run, _params(**{"datasets.A.frames.full": 800}), "full") == ["datasets.A.frames"]
 
 
+def test_a_key_renamed_since_a_record_is_compared_under_its_name_today() -> None:
+    """A record made when ``datasets.<ds>.source`` was the source's id holds ``datasets.A.source:
+    sim``; today that is ``datasets.A.source.id``: the same value is no change, another is one."""
+    from compact_perception.core.plateau_record import changed_keys
+
+    now = {"datasets.A.source.id": "sim", "seed": 1}
+    assert changed_keys({"datasets.A.source": "sim", "seed": 1}, now, "cpu") == []
+    assert changed_keys({"datasets.A.source": "authors", "seed": 1}, now, "cpu") == ["datasets.A.source.id"]
+    assert changed_keys({"datasets.A.source": "sim", "seed": 1}, {**now, "datasets.A.source.seed": 3}, "cpu") == \
+        ["datasets.A.source.seed"]
+
+
 def test_the_sentence_says_what_each_recorded_run_shows() -> None:
     params = load_params(ROOT / "params.yaml")
     ev = evidence(_record(_run(), _run("polarnet", {"iou_ls": -0.01}), _run("gradnorm_segnet", {"mae_de": 0.1},

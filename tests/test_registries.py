@@ -10,7 +10,9 @@ import pytest
 import yaml
 
 from compact_perception.core import catalog
-from compact_perception.core.params import DatasetsParams, load_params
+from compact_perception.core.params import DatasetsParams, ParamsError, load_params
+
+from repo_params import repo_params_dict
 from compact_perception.learning.weighting import WEIGHTINGS, weighting_class, weighting_settings
 
 from imports import import_targets, module_file
@@ -51,21 +53,33 @@ def test_params_yaml_follows_the_registries():
 
 
 def test_the_data_sources_equal_the_schema():
-    """``datasets.<ds>.source`` accepts exactly the registered sources, and each says what it does in
-    each data stage (compact_perception.data.sources): no stage branches on the source by hand."""
+    """``datasets.<ds>.source`` is the union of the registered sources' settings, chosen by ``id``;
+    each registered source has its module in data/sources and each module its registration, each
+    module says what it does in each data stage, and no stage branches on the source by hand."""
     import typing
 
+    from compact_perception.core.params import SOURCES, parse_params
     from compact_perception.core.params.schema import SimDatasetParams
-    from compact_perception.data.sources import SOURCES
+    from compact_perception.data.sources import MODULES, data_source
 
-    assert set(typing.get_args(SimDatasetParams.model_fields["source"].annotation)) == set(SOURCES.keys())
+    field = SimDatasetParams.model_fields["source"]
+    union = typing.get_args(field.annotation)
+    assert field.discriminator == "id"
+    assert [typing.get_args(m.model_fields["id"].annotation) for m in union] == [(k,) for k in SOURCES.keys()]
+    assert set(MODULES) == set(SOURCES.keys())
     for key in SOURCES.keys():
-        source = SOURCES[key]
+        source = data_source(key)
         assert callable(source.write_raw) and callable(source.draw_example), key
         assert source.cache is None or callable(source.cache), key
+        assert SOURCES[key].label, key
     for stage in (ROOT / "pipeline" / "generate.py", ROOT / "src" / "compact_perception" / "data" / "preprocess.py"):
         text = stage.read_text()
-        assert "source ==" not in text and "source in (" not in text, stage
+        assert "source ==" not in text and "source in (" not in text and "source.id ==" not in text, stage
+    # the discriminator: an id no source registers is one line naming the registered ones
+    d = repo_params_dict()
+    d["datasets"]["B"]["source"] = {"id": "lidar-only"}
+    with pytest.raises(ParamsError, match=r"datasets\.B\.source: .*'sim', 'authors', 'carla'"):
+        parse_params(d)
 
 
 def test_every_weighting_declares_label_and_schema():

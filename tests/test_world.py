@@ -290,13 +290,13 @@ def test_plan_c_splits_by_episode(params_dict):
 
 def test_the_world_refuses_a_dataset_of_another_source(tmp_path):
     """generate_dataset writes only 'sim' sets; another source's set is that source's, one line naming the key."""
-    from repo_params import repo_params_dict
+    from repo_params import carla_source, repo_params_dict
 
     from compact_perception.core.params import ParamsError, parse_params
     from compact_perception.data.world.generate import generate_dataset
 
     data = repo_params_dict()
-    data["datasets"]["B"]["source"] = "carla"
-    with pytest.raises(ParamsError, match=r"^datasets\.B\.source is 'carla': the embedded world writes only 'sim'"):
+    data["datasets"]["B"]["source"] = carla_source()
+    with pytest.raises(ParamsError, match=r"^datasets\.B\.source\.id is 'carla': the embedded world writes only 'sim'"):
         generate_dataset(parse_params(data), "B", tmp_path / "B")
     assert not (tmp_path / "B").exists()

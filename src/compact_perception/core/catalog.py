@@ -26,8 +26,10 @@ This module imports nothing heavy (no torch), so the config and every stage can 
   finished run exports its network to ONNX (``compact``: the paper's network; ``baseline``:
   section V-D);
 - a **loss-weighting method**: its report label and whether its weights change during training
-  (``adaptive``: the report draws those);
-- a **data source**: the label a report gives the source a cache records (:data:`SOURCE_LABEL`).
+  (``adaptive``: the report draws those).
+
+A data source's registration (its settings, label and stage deps) is in
+:mod:`compact_perception.core.params.sources`, beside the params section it validates.
 
 Adding a model (docs/extending.md): the model's entry here, a network module in
 ``learning/models/`` defining ``build`` (or an existing one), and in params.yaml its recipe
@@ -46,7 +48,7 @@ __all__ = [
     "TaskInfo", "DatasetInfo", "ModelInfo", "TASKS", "DATASETS", "MODELS",
     "task_ids", "dataset_ids", "sim_dataset_ids", "model_ids", "compact_model_ids",
     "metric_of", "metric_keys", "higher_is_better", "model_label", "table_model_ids", "combination_source",
-    "SOURCE_LABEL", "source_label", "STOP_PLATEAU", "STOP_CAP",
+    "STOP_PLATEAU", "STOP_CAP",
     "ScoreInfo", "SCORES", "table2_columns", "per_frame_scores", "per_frame_columns", "column_label", "lower_is_better",
     "score_terms", "scores_from_means", "CLASS_MAP_TASKS", "ARGMAX_TASKS",
     "WeightingInfo", "WEIGHTING_METHODS", "weighting_info", "GroupInfo", "GROUPS", "group_of",
@@ -173,15 +175,6 @@ WEIGHTING_METHODS.register("pcgrad")(WeightingInfo("PCGrad (Yu et al. 2020)"))
 WEIGHTING_METHODS.register("cagrad")(WeightingInfo("CAGrad (Liu et al. 2021)"))
 WEIGHTING_METHODS.register("single")(WeightingInfo("Single-task network", adaptive=False))
 
-#: How a report names the data source a cache records (``meta.json`` ``source``).
-SOURCE_LABEL: dict[str, str] = {
-    "sim": "simulated (embedded world)",
-    "authors": "authors' CARLA dataset",
-    "nuscenes-lidarseg": "nuScenes-lidarseg",
-    "simulated nuScenes-format": "simulated nuScenes-format",
-}
-
-
 def task_ids() -> tuple[str, ...]:
     return tuple(TASKS.keys())
 
@@ -288,11 +281,6 @@ def combination_source() -> dict[str, str]:
             raise KeyError(f"task {t!r}: the combination needs exactly one model giving it, got {givers}")
         out[TASKS[t].metric] = givers[0]
     return out
-
-
-def source_label(source: str) -> str:
-    """The report label of a cache's ``source`` (the raw value where none is registered)."""
-    return SOURCE_LABEL.get(source, source)
 
 
 def group_of(model_id: str) -> GroupInfo:

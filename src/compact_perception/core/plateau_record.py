@@ -20,6 +20,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+import re
 from pathlib import Path
 from typing import Any, Callable, Mapping, Optional, Sequence
 
@@ -106,14 +107,27 @@ CUDA_ONLY_KEYS: tuple[str, ...] = ("train.deterministic", "train.tf32")
 #: Keys added to params.yaml after runs were recorded, each with the value that does what the code
 #: did before the key existed: a record without the key was made at that value.
 UNRECORDED_VALUES: dict[str, Any] = {"evaluate.batch_size": 1}
+#: Keys renamed after runs were recorded, as (pattern of the recorded key, today's key): the value
+#: means the same under either name (``datasets.<ds>.source`` was the source's id before the
+#: section held the source's own settings).
+RENAMED_KEYS: tuple[tuple[str, str], ...] = ((r"^datasets\.([^.]+)\.source$", r"datasets.\1.source.id"),)
+
+
+def _today_name(key: str) -> str:
+    for pattern, name in RENAMED_KEYS:
+        if re.match(pattern, key):
+            return re.sub(pattern, name, key)
+    return key
 
 
 def changed_keys(recorded: Mapping[str, Any], now: Mapping[str, Any], device: str) -> list[str]:
     """The settings keys whose value ``now`` differs from a run's ``recorded`` settings (added or
     removed keys included), sorted, leaving out what cannot change that run: on a ``cpu`` record
     the keys of :data:`CUDA_ONLY_KEYS`, and a key of :data:`UNRECORDED_VALUES` the record lacks
-    whose value now is the one it was made at."""
+    whose value now is the one it was made at; a key of :data:`RENAMED_KEYS` is compared under its
+    name today."""
     missing = object()
+    recorded = {_today_name(k): v for k, v in recorded.items()}
     out = []
     for k in sorted(set(now) | set(recorded)):
         if device == "cpu" and k in CUDA_ONLY_KEYS:
@@ -137,7 +151,7 @@ def settings_at(params: Any, model: str, dataset: str, scale: str) -> dict[str, 
     the model's merged recipe (``train.models.<model>``), its epoch cap (``max_epochs``: the
     recipe's own, else the dataset's), the other ``train`` keys, ``seed``, ``world``,
     ``preprocess``, ``evaluate`` and ``datasets.<dataset>`` (its seed list left out: a record keeps
-    each run's seed; the sections of a data source it does not use left out too), less
+    each run's seed; its ``source`` section holds its own source's settings only), less
     :data:`NEUTRAL_KEYS`. Read through the params' own sections (so a stage's params audit sees
     every key), each per-scale value taken at ``scale`` whatever the file's own ``scale``."""
     if scale not in SCALES:
@@ -145,11 +159,6 @@ def settings_at(params: Any, model: str, dataset: str, scale: str) -> dict[str, 
     recipe = resolve_scale(params.train.models[model].model_dump(mode="json", exclude_none=True), scale)
     section = resolve_scale(params.dataset(dataset).model_dump(mode="json"), scale)
     section.get("training", {}).pop("seeds", None)
-    if section.get("source") != "carla":          # another source's settings shape nothing here
-        section.pop("carla", None)
-    if section.get("source") != "authors":
-        section.pop("authors_root", None)
-        section.pop("authors_splits", None)
     out: dict[str, Any] = {"seed": params.seed,
                            "max_epochs": params.max_epochs_of(params.train.models[model], dataset, scale)}
     _flatten(f"train.models.{model}", recipe, out)

@@ -2,7 +2,7 @@
 
 Layout (read from the authors' public ``train.py``, ``predict.py`` and ``mylib/util.py``)::
 
-    <authors_root>/                      the release's ``dataset/`` folder
+    <root>/                              the release's ``dataset/`` folder
         TrSet/ VaSet/ TeSet/             frame folders, one sub-folder per modality
         Tr1/ Tr2/ Tr12345/ Va1/ Va2/ Va12345/ Te1/ Te2/ Te12345/
             data_info.yml                split list: train_idx, val_idx, test_idx (list or
@@ -10,7 +10,7 @@ Layout (read from the authors' public ``train.py``, ``predict.py`` and ``mylib/u
                                          n_bird_class, bird_classes, bird_colors
 
 A split folder's first two letters name its frame folder (``Tr1`` -> ``TrSet``).
-``datasets.<ds>.authors_splits`` names the three split folders (params.yaml: A Tr1/Va2/Te2,
+``datasets.<ds>.source.splits`` names the three split folders (the paper: A Tr1/Va2/Te2,
 B Tr2/Va1/Te1, C Tr12345/Va12345/Te12345, as in the authors' scripts). Which list of a
 split's ``data_info.yml`` is used follows the authors' code exactly:
 
@@ -81,7 +81,6 @@ from PIL import Image, UnidentifiedImageError
 from tqdm import tqdm
 
 from ..core.cache import write_cache
-from ..core.params import Params
 from .dvs import dvs_colour_to_image
 from ..core.errors import RecordError
 from ..core.machine import bounded
@@ -195,9 +194,9 @@ def select_frame_ids(info: Mapping[str, Any], split: str, path: Path) -> tuple[s
 
 
 def plan_authors(root: str | os.PathLike | None, splits: Any, dataset_id: str) -> AuthorsPlan:
-    """Resolve ``authors_root`` + ``authors_splits`` (model or mapping) into an :class:`AuthorsPlan`."""
+    """Resolve ``root`` + ``splits`` of ``datasets.<ds>.source`` (model or mapping) into an :class:`AuthorsPlan`."""
     if root is None or not Path(root).is_dir():
-        raise RecordError(f"datasets.{dataset_id}.authors_root: {root!r} is not a directory; "
+        raise RecordError(f"datasets.{dataset_id}.source.root: {root!r} is not a directory; "
                           f"expected the release's dataset/ folder")
     root = Path(root)
     folders = splits.model_dump() if hasattr(splits, "model_dump") else dict(splits or {})
@@ -205,7 +204,7 @@ def plan_authors(root: str | os.PathLike | None, splits: Any, dataset_id: str) -
     infos: dict[str, dict[str, Any]] = {}
     for split in SPLITS:
         folder = folders.get(split)
-        key_name = f"datasets.{dataset_id}.authors_splits.{split}"
+        key_name = f"datasets.{dataset_id}.source.splits.{split}"
         if not isinstance(folder, str) or folder[:2] not in ("Tr", "Va", "Te"):
             raise RecordError(f"{key_name}: {folder!r}; expected a split folder such as Tr1, Va2 or Te12345")
         info_file = root / folder / "data_info.yml"
@@ -477,7 +476,7 @@ def _check_size(size: int) -> int:
 
 def ingest_authors(root: str | os.PathLike | None, splits: Any, out_dir: str | os.PathLike, dataset_id: str,
                    resolution: int = SOURCE_SIZE, workers: int = 1) -> Path:
-    """Convert the release at ``root`` (``authors_splits`` = ``splits``) into the cache at ``out_dir``.
+    """Convert the release at ``root`` (``splits``: the split folders) into the cache at ``out_dir``.
 
     Every input is checked before anything is written; the cache is written atomically.
     """
@@ -508,7 +507,7 @@ def ingest_authors(root: str | os.PathLike | None, splits: Any, out_dir: str | o
 
 def describe_authors_dataset(root: str | os.PathLike | None, splits: Any, dataset_id: str,
                              out_dir: str | os.PathLike, resolution: int = SOURCE_SIZE, workers: int = 1) -> Path:
-    """The ``generate`` stage's raw step for ``source: authors``: nothing is rendered. Checks the
+    """The ``generate`` stage's raw step of an ``authors`` source: nothing is rendered. Checks the
     whole release as :func:`ingest_authors` would, then writes a manifest pointing at ``root``
     (split files, keys and frame ids)."""
     from ..core import io
@@ -529,32 +528,3 @@ def describe_authors_dataset(root: str | os.PathLike | None, splits: Any, datase
             "seg_classes": plan.seg_classes, "bev_classes": plan.bev_classes,
         })
     return Path(out_dir)
-
-
-# ----------------------------------------------------------------------------- the data source
-# ``source: authors`` (registered in compact_perception.data.sources): no raw records; the generate
-# stage checks the release and writes a manifest, the preprocess stage converts the release.
-def write_raw(params: Params, dataset_id: str, out_dir: Path) -> None:
-    """Check the release and write ``out_dir/manifest.json`` (:func:`describe_authors_dataset`)."""
-    dp = getattr(params.datasets, dataset_id)
-    describe_authors_dataset(dp.authors_root, dp.authors_splits, dataset_id, out_dir,
-                             resolution=params.resolution, workers=params.world.workers)
-
-
-def draw_example(params: Params, dataset_id: str, raw_dir: Path, figure: Path) -> None:
-    """The qualitative grid of the first test frame, converted from the release as the cache holds it."""
-    from .figures_generate import save_cache_frame_figure
-
-    manifest = json.loads((Path(raw_dir) / "manifest.json").read_text())
-    fid = manifest["splits"]["test"][0]
-    frame = convert_frame(manifest["split_files"]["test"]["frames"], fid, len(manifest["seg_classes"]),
-                          len(manifest["bev_classes"]), int(manifest["resolution"]))
-    save_cache_frame_figure(dataset_id, frame, fid, figure,
-                            title=f"dataset {dataset_id}: authors' CARLA data, test frame {fid}")
-
-
-def cache(params: Params, dataset_id: str, raw_dir: Path, out_dir: Path) -> Path:
-    """Convert the release into the cache at ``out_dir`` (:func:`ingest_authors`)."""
-    dp = getattr(params.datasets, dataset_id)
-    return ingest_authors(dp.authors_root, dp.authors_splits, out_dir, dataset_id,
-                          resolution=params.resolution, workers=params.preprocess.workers)

@@ -144,7 +144,7 @@ def preprocess_dataset(
     if ds is None or dataset_id == "nuscenes":
         raise RecordError(f"dataset {dataset_id!r}: not a simulated dataset (A, B or C); nuScenes has its own ingestion")
     raw_dir, out_dir = Path(raw_root) / dataset_id, Path(cache_root) / dataset_id
-    source = data_source(ds.source)
+    source = data_source(ds.source.id)
     if source.cache is None:  # data/raw/<ds> holds raw records (compact_perception.data.record)
         cache = preprocess_sim(raw_dir, out_dir, dataset_id, params.preprocess)
     else:

@@ -29,7 +29,7 @@ from tqdm.auto import tqdm
 
 from ..core import catalog, io
 from ..core.cache import read_meta, read_split
-from ..core.params import Params
+from ..core.params import Params, source_label
 from ..core.errors import ReportInputError, RunError, checkpoint_load_reason
 from ..core.layout import BEST_HASH_KEY, RunPaths, floor_paths
 from ..core.depth import DEPTH_FAR_M, DEPTH_LOG_K
@@ -322,7 +322,7 @@ def score_test_split(model: torch.nn.Module, paths: RunPaths, how: Scoring, *, l
     if floor is not None:
         result["floor_margin"] = margins({k: v["mean"] for k, v in result.items() if isinstance(v, dict)
                                           and "mean" in v}, floor)
-    result.update({"n_frames": len(per_frame), "source": catalog.source_label(meta.get("source", "sim")),
+    result.update({"n_frames": len(per_frame), "source": source_label(meta.get("source", "sim")),
                    "device": torch.cuda.get_device_name() if device.type == "cuda" else "CPU", **(extra or {})})
     _write_outputs(paths.eval_dir, paths.metrics_path, result, per_frame, ids, preds, inputs, how.save_predictions)
     log.info("%s/%s test: %s", dataset_id, name,

@@ -54,6 +54,7 @@ import pandas as pd
 from ..core import catalog
 from ..core.cache import frame_cluster
 from ..core.errors import ReportInputError
+from ..core.params import source_label
 from ..core.io import read_json
 from ..core.layout import RunPaths, cache_dir, floor_paths, run_paths
 from ..stats import Comparison, Group, make_comparison
@@ -331,7 +332,7 @@ def collect_scale(root: Path, datasets: Sequence[str], models: Sequence[str],
             sc.resolution = meta.get("resolution")
             sc.has_dvs = meta.get("has_dvs")
             src = meta.get("source")
-            sc.source = catalog.source_label(src) if src else None
+            sc.source = source_label(src) if src else None
         for m in models:
             facts = []
             for run in list_runs(root, ds, m, seeds_for(seeds, m, ds)):

@@ -29,7 +29,8 @@ This package holds the params, one module per concern, and this module is its on
 (callers import from here): :mod:`.base` (``Strict``, ``Scaled`` and the one resolver of
 ``scale``, the count bounds), :mod:`.recipe` (a model's recipe and its merging), :mod:`.schema`
 (the sections and ``Params``), :mod:`.errors` (``ParamsError`` and its one-line messages),
-:mod:`.file` (reading the file) and :mod:`.audit` (which keys a stage reads).
+:mod:`.file` (reading the file), :mod:`.audit` (which keys a stage reads) and :mod:`.sources`
+(the data sources' registrations: each one's settings section, label and stage deps).
 """
 from __future__ import annotations
 
@@ -37,10 +38,10 @@ from .base import (MAX_BATCH, MAX_FRAMES, MAX_SAVED_PREDICTIONS, MAX_SCENES, MAX
                    Strict, resolve_scale)
 from .errors import ParamsError, format_error
 from .file import MAX_PARAMS_BYTES, MAX_PARAMS_VALUES, DuplicateKeyError, ExpansionError, UniqueKeyLoader, load_params
-from .schema import (DATASET_IDS, TOWNS, AuthorsSplits, BenchmarkParams, CameraParams, CarlaSource, ConditionParams,
-                     DatasetsParams, DvsParams, EvalParams, LidarParams, NuScenesParams, Params, PreprocessParams,
-                     SimDatasetParams, SplitRatio, StudyParams, TrainingBudget, TrainParams, WorldParams, parse_params)
+from .schema import (DATASET_IDS, TOWNS, BenchmarkParams, CameraParams, ConditionParams, DatasetsParams, DvsParams,
+                     EvalParams, LidarParams, NuScenesParams, Params, PreprocessParams, SimDatasetParams, SplitRatio, StudyParams, TrainingBudget, TrainParams, WorldParams, parse_params)
 from .recipe import ModelRecipe, check_lr_floor, merge_recipe
+from .sources import SOURCES, AuthorsSource, AuthorsSplits, CarlaSource, SimSource, SourceSettings, source_label
 
 __all__ = [
     "Strict", "Scaled", "ScaleName", "SCALES", "MAX_FRAMES", "MAX_SCENES", "MAX_WORKERS", "MAX_BATCH",
@@ -51,4 +52,5 @@ __all__ = [
     "CameraParams", "CarlaSource", "ConditionParams", "DatasetsParams", "DvsParams", "EvalParams", "LidarParams",
     "NuScenesParams", "Params", "PreprocessParams", "SimDatasetParams", "SplitRatio", "StudyParams",
     "TrainingBudget", "TrainParams", "WorldParams", "ModelRecipe", "check_lr_floor", "merge_recipe",
+    "SOURCES", "AuthorsSource", "SimSource", "SourceSettings", "source_label",
 ]

@@ -13,6 +13,7 @@ from .base import (MAX_BATCH, MAX_FRAMES, MAX_SAVED_PREDICTIONS, MAX_SCENES, MAX
                           ScaleName, Scaled, Strict, _scaled_at_least, _scaled_at_most, _scaled_distinct_seeds,
                           resolve_scale)
 from .errors import ParamsError, _format, _in_params
+from .sources import SOURCES, SourceSettings
 from .recipe import ModelRecipe, _from_base, _inherited, _plain, merge_recipe
 
 TOWNS = ("town01", "town02", "town03", "town04", "town05")
@@ -83,54 +84,6 @@ class WorldParams(Strict):
 
 
 # ----------------------------------------------------------------------------- datasets
-class AuthorsSplits(Strict):
-    """Split folders of the authors' release (``<authors_root>/<folder>/data_info.yml``, e.g. Tr1,
-    Va2, Te2); a folder's first two letters name its frame folder (Tr1 -> TrSet)."""
-
-    train: str
-    val: str
-    test: str
-
-    @field_validator("train", "val", "test")
-    @classmethod
-    def _folder(cls, v: str) -> str:
-        if v[:2] not in ("Tr", "Va", "Te") or "/" in v or "\\" in v or v in ("TrSet", "VaSet", "TeSet"):
-            raise ValueError(f"expected a split folder name starting with Tr, Va or Te (e.g. Tr1, Va2, Te12345), got {v!r}")
-        return v
-
-
-class CarlaSource(Strict):
-    """A dataset recorded from a CARLA server (``source: carla``; docs/carla.md): what
-    ``python -m pipeline.collect_carla --dataset <ds>`` connects to and records, and the folder
-    it writes (``root``), which ``generate@<ds>`` validates and brings into ``data/raw/<ds>``.
-    The towns are the dataset's ``train_towns``/``eval_towns`` (town01 -> CARLA's Town01), the
-    frames and splits its ``frames``/``split_ratio``, the seed ``seed`` + ``seed_offset``, the
-    sensor rig ``world.camera``/``world.lidar``/``world.dvs`` at ``world.resolution``."""
-
-    root: str = Field(min_length=1, description="folder the collector writes (never data/raw/<ds>, a DVC output)")
-    host: str = Field(min_length=1, description="CARLA server address")
-    port: int = Field(ge=1, le=65535, description="CARLA server RPC port (CarlaUE4.sh -carla-rpc-port)")
-    timeout_s: float = Field(gt=0.0, le=600.0, description="connection timeout and each sensor's timeout per tick")
-    load_world_timeout_s: float = Field(gt=0.0, le=3600.0, description="the client's time-out while the server loads "
-                                        "a town (a large map takes longer than a tick)")
-    fixed_delta_s: float = Field(gt=0.0, le=0.5, description="synchronous simulation step; "
-                                 "world.dvs.step_s / fixed_delta_s ticks make one recorded frame")
-    frames_per_episode: int = Field(ge=1, le=10000, description="consecutive frames of one drive (episode length)")
-    warmup_ticks: int = Field(ge=0, le=10000, description="ticks driven before an episode's first frame")
-    vehicles: int = Field(ge=0, le=1000, description="traffic vehicles on the autopilot")
-    pedestrians: int = Field(ge=0, le=1000, description="pedestrians walking to random places")
-    times: list[Literal["morning", "noon", "evening", "night"]] = Field(min_length=1, description="drawn per episode")
-    weathers: list[Literal["sunny", "cloudy", "rainy", "foggy"]] = Field(min_length=1, description="drawn per episode")
-
-    @field_validator("root")
-    @classmethod
-    def _root(cls, v: str) -> str:
-        parts = Path(v).parts
-        if len(parts) >= 2 and parts[-2] == "raw" and "data" in parts[:-2]:
-            raise ValueError(f"{v!r} is inside data/raw, which generate writes; record elsewhere (e.g. data/carla/A)")
-        return v
-
-
 class SplitRatio(Strict):
     """Integer shares of the train / val / test splits (the paper's Table I: 3:1:1)."""
 
@@ -167,12 +120,10 @@ class TrainingBudget(Strict):
 
 
 class SimDatasetParams(Strict):
-    """A simulated dataset (A, B, C): town splits of paper Table I."""
+    """A CARLA-like dataset (A, B, C): town splits of paper Table I, from the data source its
+    ``source`` section names (:mod:`.sources`)."""
 
-    source: Literal["sim", "authors", "carla"]
-    authors_root: Optional[str] = Field(description="root of the authors' released dataset (source: authors); null otherwise")
-    authors_splits: AuthorsSplits = Field(description="split folders used with source: authors (paper: "
-                                          "A Tr1/Va2/Te2, B Tr2/Va1/Te1, C Tr12345/Va12345/Te12345)")
+    source: SourceSettings = Field(description="where its data come from: {id: <source>, <that source's settings>}")
     frames: Scaled[int]
     split_ratio: Scaled[SplitRatio] = Field(description="train:val:test shares (paper 3:1:1); the default scale "
                                             "gives the test split more frames, so frame sampling is not the main noise")
@@ -180,8 +131,17 @@ class SimDatasetParams(Strict):
     eval_towns: list[str]
     split_by: Literal["town", "episode"]
     seed_offset: int = Field(ge=0, description="added to the top-level seed for this dataset's episodes")
-    carla: CarlaSource = Field(description="the CARLA server and recording folder of source: carla")
     training: TrainingBudget
+
+    @field_validator("source", mode="before")
+    @classmethod
+    def _source_section(cls, v: Any) -> Any:
+        """A section ``{id: <source>, <its settings>}``; a bare id (``source: sim``, the former
+        layout) is one line saying so."""
+        if not isinstance(v, dict):
+            raise PydanticCustomError("source_section", "expected a section: id (one of {ids}) and that source's "
+                                      "settings (docs/data-formats.md)", {"ids": ", ".join(SOURCES.keys())})
+        return v
 
     @field_validator("train_towns", "eval_towns")
     @classmethod
@@ -198,12 +158,6 @@ class SimDatasetParams(Strict):
     def _frames(cls, v: Scaled[int]) -> Scaled[int]:
         _scaled_at_most(v, MAX_FRAMES, "frames a dataset may have")
         return _scaled_at_least(v, 5)  # one frame per split at least
-
-    @model_validator(mode="after")
-    def _authors(self) -> "SimDatasetParams":
-        if self.source == "authors" and not self.authors_root:
-            raise ValueError("source 'authors' needs authors_root")
-        return self
 
     def towns_by_split(self) -> dict[str, list[str]]:
         """The towns each split's episodes cycle through: ``split_by: town`` keeps the train towns
@@ -541,9 +495,12 @@ class Params(Strict):
 
 
 def _recipe_place(data: Any) -> Callable[[tuple], tuple]:
-    """Where an error inside ``train.models.<id>`` lies in the raw params ``data``: at
-    ``train.recipe.<key>`` for a key that model does not set (:class:`TrainParams`'s merge)."""
+    """Where an error lies in the raw params ``data``: inside ``train.models.<id>``, at
+    ``train.recipe.<key>`` for a key that model does not set (:class:`TrainParams`'s merge); inside
+    ``datasets.<ds>.source``, at the key itself (the union's tag, the source id, is no key)."""
     def place(loc: tuple) -> tuple:
+        if len(loc) >= 4 and loc[0] == "datasets" and loc[2] == "source" and loc[3] in SOURCES:
+            return loc[:3] + loc[4:]
         train = data.get("train") if isinstance(data, dict) else None
         if len(loc) < 4 or loc[:2] != ("train", "models") or not isinstance(train, dict):
             return loc

@@ -1,4 +1,4 @@
-"""Recording the paper's datasets from a CARLA server (``source: carla``; docs/carla.md).
+"""Recording the paper's datasets from a CARLA server (a ``carla`` source; docs/carla.md).
 
 | module | concern |
 |---|---|

@@ -112,7 +112,7 @@ def check_towns(client: Any, maps: list[str], where: str) -> None:
 
 
 def load_town(client: Any, name: str, where: str, timeout_s: float, load_timeout_s: float, fresh: bool = False,
-              timeout_key: str = "datasets.<ds>.carla.load_world_timeout_s") -> Any:
+              timeout_key: str = "datasets.<ds>.source.load_world_timeout_s") -> Any:
     """The world with map ``name``, loaded if it is not the current one (or ``fresh``: always,
     which clears the actors a session cut short left behind). The load runs under the client
     time-out ``load_timeout_s`` (the params key ``timeout_key``); ``timeout_s`` is restored afterwards."""
@@ -349,11 +349,10 @@ def collect(carla: Any, params: Any, dataset_id: str, root: str, host: str, port
 
     Nothing is written before the server has answered and has every town the dataset needs.
     """
-    from .recording import plan_document, ticks_per_frame
+    from .recording import carla_settings, plan_document, ticks_per_frame
     from .rig import sensor_specs
 
-    dp = getattr(params.datasets, dataset_id)
-    cs = dp.carla
+    cs = carla_settings(params, dataset_id)
     where = f"{host}:{port}"
     client, server = connect(carla, host, port, cs.timeout_s)
     doc = plan_document(params, dataset_id)
@@ -372,7 +371,7 @@ def collect(carla: Any, params: Any, dataset_id: str, root: str, host: str, port
     layers_of: dict[str, bev.Layers] = {}
     for ep in sorted((e for e in episodes if e.index in todo), key=lambda e: (e.map, e.index)):
         world = load_town(client, ep.map, where, cs.timeout_s, cs.load_world_timeout_s, fresh=not layers_of,
-                          timeout_key=f"datasets.{dataset_id}.carla.load_world_timeout_s")
+                          timeout_key=f"datasets.{dataset_id}.source.load_world_timeout_s")
         if ep.map not in layers_of:
             with server_step(f"generate_waypoints ({ep.map})", where):
                 layers_of = {ep.map: bev.map_layers(world.get_map().generate_waypoints(WAYPOINT_SPACING_M),

@@ -1,7 +1,7 @@
 """A dataset recorded from CARLA: its plan, the frame writer that resumes, and the check that
-brings a complete recording into ``data/raw/<ds>`` (the ``generate`` stage of ``source: carla``).
+brings a complete recording into ``data/raw/<ds>`` (the ``generate`` stage of a ``carla`` source).
 
-The collector writes ``datasets.<ds>.carla.root`` (never ``data/raw/<ds>``, a DVC output)::
+The collector writes ``datasets.<ds>.source.root`` (never ``data/raw/<ds>``, a DVC output)::
 
     <root>/plan.json              written first: what is recorded (episodes, rig, settings)
     <root>/frames/<id>.npz        one raw record per frame (compact_perception.data.record), each atomically
@@ -31,7 +31,7 @@ import numpy as np
 
 from ...core import io
 from ...core.classes import BEV_NAMES, CARLA_NAMES
-from ...core.params import Params
+from ...core.params import CarlaSource, Params, ParamsError
 from ...core.errors import RecordError
 from ..geometry import VIEWS
 from ..record import SPLITS, RecordSpec, load_record, validate_record
@@ -65,17 +65,26 @@ def carla_map(town: str) -> str:
     return "Town" + town[len("town"):]
 
 
+def carla_settings(params: Params, dataset_id: str) -> CarlaSource:
+    """``datasets.<ds>.source`` of a dataset recorded from CARLA; a set of another source is one line."""
+    settings = params.dataset(dataset_id).source
+    if settings.id != "carla":
+        raise ParamsError(f"datasets.{dataset_id}.source.id is {settings.id!r}: recording from CARLA needs "
+                          "datasets.<ds>.source: {id: carla, root: ..., host: ..., ...} (docs/carla.md)")
+    return settings
+
+
 def ticks_per_frame(params: Params, dataset_id: str) -> int:
     """Simulation steps between two recorded frames: ``world.dvs.step_s`` / ``fixed_delta_s`` (at least 1)."""
-    cs = getattr(params.datasets, dataset_id).carla
+    cs = carla_settings(params, dataset_id)
     return max(1, int(round(params.world.dvs.step_s / cs.fixed_delta_s)))
 
 
 def plan_recording(params: Params, dataset_id: str) -> list[EpisodePlan]:
     """The episodes of a recorded dataset: its frames at ``scale`` split by ``split_ratio``,
     ``carla.frames_per_episode`` per episode, towns as the simulated sets use them."""
-    dp = getattr(params.datasets, dataset_id)
-    cs = dp.carla
+    dp = params.dataset(dataset_id)
+    cs = carla_settings(params, dataset_id)
     n = params.split_counts_of(dataset_id)
     towns = dp.towns_by_split()
     plan, index = [], 0
@@ -95,8 +104,7 @@ def plan_recording(params: Params, dataset_id: str) -> list[EpisodePlan]:
 
 def plan_document(params: Params, dataset_id: str) -> dict[str, Any]:
     """What a recording is made of; two recordings with equal documents are interchangeable."""
-    dp = getattr(params.datasets, dataset_id)
-    cs = dp.carla
+    cs = carla_settings(params, dataset_id)
     size = params.resolution
     return {
         "dataset": dataset_id, "resolution": size, "views": list(VIEWS),
@@ -234,7 +242,7 @@ def check_recording(params: Params, dataset_id: str, root: str | Path) -> dict[s
     root = Path(root)
     hint = f"record it with: python -m pipeline.collect_carla --dataset {dataset_id} (docs/carla.md)"
     if not root.is_dir():
-        raise RecordError(f"datasets.{dataset_id}.carla.root: {str(root)!r} is not a directory; {hint}")
+        raise RecordError(f"datasets.{dataset_id}.source.root: {str(root)!r} is not a directory; {hint}")
     path = root / "manifest.json"
     if not path.is_file():
         raise RecordError(f"{root}: recording incomplete (no manifest.json); {hint}")

@@ -272,9 +272,9 @@ def generate_dataset(params: Params, dataset_id: str, out_dir: str | Path) -> Pa
     after checking the free disk can hold it (:func:`check_disk`)."""
     check_dataset_params(params, dataset_id)
     dp = getattr(params.datasets, dataset_id)
-    if dp.source != "sim":
-        raise ParamsError(f"datasets.{dataset_id}.source is {dp.source!r}: the embedded world writes only "
-                          f"'sim' datasets (data/sources.py has the {dp.source!r} source's own)")
+    if dp.source.id != "sim":
+        raise ParamsError(f"datasets.{dataset_id}.source.id is {dp.source.id!r}: the embedded world writes only "
+                          f"'sim' datasets (data/sources/{dp.source.id}.py is that source's own)")
     wp = params.world
     S = params.resolution
     total, n_episodes = episode_count(params, dataset_id)
@@ -314,7 +314,7 @@ def generate_dataset(params: Params, dataset_id: str, out_dir: str | Path) -> Pa
             "dataset": dataset_id, "source": "sim", "resolution": S, "views": list(VIEWS), "splits": splits,
             "frames": frames, "seg_classes": list(CARLA_NAMES), "bev_classes": list(BEV_NAMES),
             "params": {"seed": params.seed, "scale": params.scale, "world": wp.model_dump(mode="json"),
-                       "dataset": dp.model_dump(mode="json", exclude={"training", "carla"})},
+                       "dataset": dp.model_dump(mode="json", exclude={"training"})},
         }
         io.write_json(tmp / "manifest.json", manifest)
     log.info("dataset %s written: %s", dataset_id, {k: len(v) for k, v in splits.items()})

@@ -1,6 +1,8 @@
-"""The data sources of sets A, B, C, by their ``datasets.<ds>.source`` id in params.yaml.
+"""The data sources of sets A, B, C at work: the module of each, by its ``datasets.<ds>.source.id``.
 
-A source is a module that says what it does in each data stage:
+A source is one module of this package, named after its id, that says what it does in each data
+stage, and one registration, its settings model in :mod:`compact_perception.core.params.sources`
+(its id, the settings of ``datasets.<ds>.source``, its report label and its stage deps):
 
 - ``write_raw(params, dataset_id, out_dir)``: the generate stage's ``data/raw/<ds>``; raw records
   (:mod:`compact_perception.data.record`) or, for a source without them, a manifest;
@@ -11,21 +13,18 @@ A source is a module that says what it does in each data stage:
   the cache (:mod:`compact_perception.core.cache`).
 
 The generate stage (``pipeline/generate.py``) and :func:`compact_perception.data.preprocess.preprocess_dataset`
-look the source up here and call it. A new source is one module plus its line below; the params
-schema's ``source`` ids (``core.params.schema.SimDatasetParams``) must equal :data:`SOURCES`'
-(``tests/test_registries.py``). nuScenes is not one of them: it has stages of its own
-(``nuscenes_sim``, ``ingest_nuscenes``) and no ``source`` key.
+look the source up here (:func:`data_source`) and call it; neither names a source. This package
+imports every module in it; the folder is one dependency of both stages in ``dvc.yaml``, beside
+the code the sources run (each registration's ``deps``).
 """
 from __future__ import annotations
 
 from pathlib import Path
+from types import ModuleType
 from typing import Callable, Optional, Protocol
 
-from . import authors
-from .carla import source as carla_source
-from ..core.params import Params
-from ..core.registry import Registry
-from .world import source as world_source
+from ...core.params import SOURCES, Params
+from ...core.registry import import_submodules
 
 
 class DataSource(Protocol):
@@ -38,12 +37,13 @@ class DataSource(Protocol):
     def draw_example(self, params: Params, dataset_id: str, raw_dir: Path, figure: Path) -> None: ...
 
 
-SOURCES: Registry[DataSource] = Registry("data source", ordered=True)
-SOURCES.register("sim")(world_source)       # the embedded world (world/source.py)
-SOURCES.register("authors")(authors)        # the authors' released CARLA dataset (authors.py)
-SOURCES.register("carla")(carla_source)     # a recording from a CARLA server (carla/source.py)
+#: source id -> its module (every module of this package, by name)
+MODULES: dict[str, ModuleType] = import_submodules(__name__, __path__)
 
 
 def data_source(source_id: str) -> DataSource:
-    """The source registered as ``source_id`` (a ``datasets.<ds>.source`` value)."""
-    return SOURCES[source_id]
+    """The module of the source registered as ``source_id`` (a ``datasets.<ds>.source.id``)."""
+    SOURCES[source_id]  # an unknown id names the registered ones
+    if source_id not in MODULES:
+        raise KeyError(f"data source {source_id!r} is registered but has no module data/sources/{source_id}.py")
+    return MODULES[source_id]

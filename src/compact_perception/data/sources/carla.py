@@ -1,7 +1,7 @@
-"""A CARLA recording as a data source (``datasets.<ds>.source: carla``; registered in
-:mod:`compact_perception.data.sources`). The smallest source: copy this file for a new one.
+"""A CARLA recording as a data source (``datasets.<ds>.source: {id: carla, root, ...}``; its
+registration: ``core.params.sources.CarlaSource``). The smallest source: copy this file for a new one.
 
-- raw records: :func:`write_raw` checks the recording at ``datasets.<ds>.carla.root``
+- raw records: :func:`write_raw` checks the recording at ``datasets.<ds>.source.root``
   (``pipeline.collect_carla`` wrote it) and copies it into ``data/raw/<ds>``;
 - the cache: none of its own (``cache = None``): the preprocess stage reads the raw records;
 - an example frame: :func:`draw_example` draws the first test frame's raw record.
@@ -12,8 +12,8 @@ import logging
 from pathlib import Path
 
 from ...core.params import Params
+from ..carla.recording import import_recording
 from ..record import load_manifest, load_record
-from .recording import import_recording
 
 log = logging.getLogger(__name__)
 
@@ -22,8 +22,8 @@ cache = None
 
 
 def write_raw(params: Params, dataset_id: str, out_dir: Path) -> None:
-    """Check the recording at ``datasets.<ds>.carla.root`` and copy it into ``out_dir`` (= data/raw/<ds>)."""
-    root = getattr(params.datasets, dataset_id).carla.root
+    """Check the recording at ``datasets.<ds>.source.root`` and copy it into ``out_dir`` (= data/raw/<ds>)."""
+    root = params.dataset(dataset_id).source.root
     import_recording(params, dataset_id, root, out_dir)
     log.info("copied the CARLA recording %s into %s", root, out_dir)
 

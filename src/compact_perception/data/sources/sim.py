@@ -1,7 +1,7 @@
-"""The embedded world as a data source (``datasets.<ds>.source: sim``; registered in
-:mod:`compact_perception.data.sources`).
+"""The embedded world as a data source (``datasets.<ds>.source: {id: sim}``; its registration:
+``core.params.sources.SimSource``).
 
-- raw records: :func:`write_raw` renders the set into ``data/raw/<ds>`` (:func:`.generate.generate_dataset`);
+- raw records: :func:`write_raw` renders the set into ``data/raw/<ds>`` (:func:`..world.generate.generate_dataset`);
 - the cache: none of its own (``cache = None``): the preprocess stage reads the raw records;
 - an example frame: :func:`draw_example` renders the first two frames of the first test episode
   again and draws the last as the generate stage's panel.
@@ -11,8 +11,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from ...core.params import Params
-from . import generate
-from .generate import iter_episodes, render_episode
+from ..world import generate
+from ..world.generate import iter_episodes, render_episode
 
 #: The preprocess stage reads this source's raw records (compact_perception.data.record).
 cache = None
