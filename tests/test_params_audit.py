@@ -43,6 +43,22 @@ def test_a_method_runs_on_the_view(params_dict):
     assert "train.recipe.lr" in log.keys and "study.arms.dwa" not in log.keys
 
 
+def test_a_value_at_the_files_scale_records_its_key_and_scale(params_dict):
+    """``scale`` is resolved once, when params load; reading a value at it (``resolution``,
+    ``frames_of``, ``split_counts_of``, ``seeds_of``) still records that key and ``scale``, and a
+    value asked at another scale records its key only."""
+    view, log = _view(params_dict)
+    assert view.resolution == 32 and view.frames_of("B") == params_dict["datasets"]["B"]["frames"]["default"]
+    assert leaf_keys(log.keys) == {"scale", "world.resolution", "datasets.B.frames"}
+    view, log = _view(params_dict)
+    assert sum(view.split_counts_of("C").values()) == params_dict["datasets"]["C"]["frames"]["default"]
+    keys = leaf_keys(log.keys)
+    assert {"scale", "datasets.C.frames"} <= keys and any(k.startswith("datasets.C.split_ratio.") for k in keys)
+    view, log = _view(params_dict)
+    view.seeds_of("baseline", "A", "full")
+    assert leaf_keys(log.keys) == {"baseline_seeds.full"}   # no "scale": not read at the file's scale
+
+
 def _worker_reads(params, run) -> float:
     """What a stage's worker reads: a setting of the params and a value of the run's recipe."""
     return params.train.num_threads * run.recipe.lr

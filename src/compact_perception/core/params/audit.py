@@ -64,7 +64,8 @@ class ParamsView:
     """Read-only view of a params model that records each key read (``a.b.c``).
 
     Reading a field records its path; ``model_dump`` records every field (and extra key) it
-    dumps; a public method or property of the model's own class (``Scaled.at``,
+    dumps; a value read from ``Params``' values at its scale (``_at_scale``) records its key and
+    ``scale``; a public method or property of the model's own class (``Scaled.at``,
     ``Params.study_recipe``, ``Params.resolution``) runs with this view as ``self``; anything else
     is passed through.
     """
@@ -80,6 +81,9 @@ class ParamsView:
         if name in type(model).model_fields:
             _read(log, model, path, name)
             return _wrap(value, _join(path, name), log)
+        if name == "_at_scale":  # the values at the file's scale, resolved once (Params.model_post_init):
+            log.add(_join(path, "scale"))  # a value read there is its key's, at the scale ``scale`` chose
+            return _MappingView(value, path, log)
         if name == "model_dump":
             def dump(*args: Any, exclude: Any = None, **kwargs: Any) -> Any:
                 for key in (*type(model).model_fields, *(model.model_extra or {})):

@@ -439,10 +439,6 @@ class Params(Strict):
         copy.model_post_init(None)
         return copy
 
-    def _section_at_scale(self, dataset: str) -> dict[str, Any]:
-        self.dataset(dataset)  # an unknown id is one line
-        return self._at_scale["datasets"][dataset]
-
     @property
     def resolution(self) -> int:
         """``world.resolution`` at this scale: the side S of every image and top view (px)."""
@@ -450,11 +446,13 @@ class Params(Strict):
 
     def frames_of(self, dataset: str) -> int:
         """``datasets.<ds>.frames`` at this scale (a simulated set's frames in all splits)."""
-        return self._section_at_scale(dataset)["frames"]
+        self.dataset(dataset)  # an unknown id is one line
+        return self._at_scale["datasets"][dataset]["frames"]
 
     def split_counts_of(self, dataset: str) -> dict[str, int]:
         """Frames per split of a simulated set at this scale (``split_ratio`` applied to ``frames``)."""
-        return SplitRatio(**self._section_at_scale(dataset)["split_ratio"]).counts(self.frames_of(dataset))
+        self.dataset(dataset)
+        return SplitRatio(**self._at_scale["datasets"][dataset]["split_ratio"]).counts(self.frames_of(dataset))
 
     @property
     def study_datasets(self) -> list[str]:
@@ -474,11 +472,13 @@ class Params(Strict):
         """The training seeds of a model group (``catalog.ModelInfo.group``) on ``dataset`` at
         ``scale`` (default: this file's), by the group's rule (``catalog.GROUPS``):
         ``datasets.<ds>.training.seeds`` for ``compact``, ``baseline_seeds`` for ``baseline``."""
-        if catalog.GROUPS[group].seeds == "dataset":
-            if scale is None or scale == self.scale:
-                return list(self._section_at_scale(dataset)["training"]["seeds"])
-            return list(self.dataset(dataset).training.seeds.at(scale))
-        return list(self._at_scale["baseline_seeds"] if scale in (None, self.scale) else self.baseline_seeds.at(scale))
+        by_dataset = catalog.GROUPS[group].seeds == "dataset"
+        if scale is not None:  # another scale's (the report at full asks): read there, not this file's scale
+            return list((self.dataset(dataset).training.seeds if by_dataset else self.baseline_seeds).at(scale))
+        if by_dataset:
+            self.dataset(dataset)  # an unknown id is one line
+            return list(self._at_scale["datasets"][dataset]["training"]["seeds"])
+        return list(self._at_scale["baseline_seeds"])
 
     def max_epochs_of(self, recipe: ModelRecipe, dataset: str, scale: Optional[ScaleName] = None) -> int:
         """The epoch cap of a run of ``recipe`` on ``dataset``: the recipe's own ``max_epochs`` where
