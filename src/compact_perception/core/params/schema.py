@@ -2,7 +2,6 @@
 :func:`parse_params` (see :mod:`compact_perception.core.params` for the rules)."""
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any, Callable, Literal, Optional, Union
 
 from pydantic import Field, PrivateAttr, ValidationError, ValidatorFunctionWrapHandler, field_validator, model_validator
