@@ -321,6 +321,8 @@ def test_params_carla_source(params_dict, tmp_path):
     path.write_text(yaml.safe_dump(params_dict))
     p = load_params(path)
     assert p.datasets.B.source.id == "carla" and p.datasets.B.source.root == "recordings/B"
+    assert set(plan_document(p, "B")["settings"]) == {"fixed_delta_s", "frames_per_episode", "warmup_ticks",
+                                                      "vehicles", "pedestrians", "times", "weathers"}
     from compact_perception.data.carla.recording import carla_settings
     with pytest.raises(ParamsError, match=r"^datasets\.A\.source\.id is 'sim': recording from CARLA needs "):
         carla_settings(p, "A")

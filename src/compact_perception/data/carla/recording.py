@@ -112,7 +112,9 @@ def plan_document(params: Params, dataset_id: str) -> dict[str, Any]:
         "rig": [asdict(s) for s in sensor_specs(params.world, size, cs.fixed_delta_s)],
         "lidar_range_m": params.world.lidar.range_m,
         "ticks_per_frame": ticks_per_frame(params, dataset_id),
-        "settings": cs.model_dump(mode="json", exclude={"root", "host", "port", "timeout_s", "load_world_timeout_s"}),
+        # what shapes the data (a recording made before the source had an id compares equal)
+        "settings": cs.model_dump(mode="json",
+                                  exclude={"id", "root", "host", "port", "timeout_s", "load_world_timeout_s"}),
     }
 
 
