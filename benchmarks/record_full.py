@@ -10,6 +10,9 @@ starts again from its ``last.pt``); sets its params.yaml to ``scale: full``, thi
 models (and, with ``--seeds``, those seeds only), through DVC's own YAML writer; creates its
 ``.venv`` (``make setup``) and runs the pipeline's own stages, ``dvc repro train@<ds>
 evaluate@<ds>`` (the data stages before them as DVC needs), logging to ``<workdir>/record_full.log``.
+The copy's params.yaml is that commit's: one written in a layout since replaced is read in today's
+(``core/params/former.py`` lists those layouts), so a run recorded at an earlier commit is re-created
+by the command its record gives.
 Then, or with ``--root DIR`` alone, it writes the record (version 2 of
 ``compact_perception.core.plateau_record``, the one record format, which the report reads with):
 per run its ``summary.json``, ``metrics.json``, ``per_frame.csv`` and loss-weight and validation
@@ -110,7 +113,7 @@ def set_params(path: Path, dataset: str, models: list[str], seeds: list[int] | N
         if seeds is not None:
             data["baseline_seeds"]["full"] = seeds
             data["datasets"][dataset]["training"]["seeds"]["full"] = seeds
-    load_params(path)
+    load_params(path, former=True)
 
 
 def run_stages(workdir: Path, dataset: str) -> int:
@@ -175,9 +178,9 @@ def main(argv: list[str] | None = None) -> None:
         root = args.workdir or args.root
         if args.workdir:
             commit = prepare(args.workdir.resolve(), args.commit)
-            models = args.models or list(load_params(args.workdir / "params.yaml").model_ids)
+            models = args.models or list(load_params(args.workdir / "params.yaml", former=True).model_ids)
             set_params(args.workdir / "params.yaml", args.dataset, models, args.seeds)
-        params = load_params(root / "params.yaml")
+        params = load_params(root / "params.yaml", former=True)
         models = args.models or list(params.model_ids)
         unknown = [m for m in models if m not in MODELS or m not in params.train.models]
         if unknown:

@@ -198,3 +198,27 @@ def test_the_script_records_a_copy_and_checks_a_rerun_against_a_record(tmp_path:
         done = _script("--dataset", "B", "--root", str(copy), "--out", str(tmp_path / "x.json"), *bad)
         assert done.returncode == 1 and done.stderr.strip().splitlines()[-1].startswith(f"error: {says}"), done.stderr
         assert not (tmp_path / "x.json").exists()
+
+
+def test_the_script_records_a_copy_at_a_commit_whose_params_are_in_a_former_layout(tmp_path: Path) -> None:
+    """A part resumed, or a run re-created, at a commit before datasets.<ds>.source became a
+    section: its params.yaml (written as such commits wrote it) is read in today's layout, and
+    the record's settings carry today's keys, so the report compares them with today's params."""
+    copy = tmp_path / "copy"
+    _tree(copy)
+    data = yaml.safe_load((ROOT / "params.yaml").read_text())
+    data.update({"scale": "full", "dataset_ids": ["B"], "model_ids": list(COMPACT)})
+    for section in data["datasets"].values():
+        if "source" in section:
+            section.update({"source": "sim", "authors_root": None,
+                            "authors_splits": {"train": "Tr2", "val": "Va1", "test": "Te1"}})
+    del data["evaluate"]["batch_size"]
+    (copy / "params.yaml").write_text(yaml.safe_dump(data, sort_keys=False))
+    out = tmp_path / "B_compact.json"
+    done = _script("--dataset", "B", "--root", str(copy), "--models", "compact_1l", "--out", str(out))
+    assert done.returncode == 0, done.stderr
+    assert "former layout read as today's: datasets.B.source: 'sim' -> {id: sim, ...} (dropped authors_root" \
+        in done.stderr
+    settings = json.loads(out.read_text())["runs"][0]["settings"]
+    assert settings["datasets.B.source.id"] == "sim" and "datasets.B.source" not in settings
+    assert settings["evaluate.batch_size"] == 1

@@ -176,7 +176,7 @@ FINGERPRINTED = {
         "__init__", "cache", "catalog", "classes", "depth", "depth_metrics", "determinism", "errors",
         "io", "layout", "machine", "registry", "scores")),
     *(f"compact_perception/core/params/{m}.py" for m in (
-        "__init__", "base", "errors", "file", "recipe", "schema", "sources")),
+        "__init__", "base", "errors", "file", "former", "recipe", "schema", "sources")),
     "compact_perception/__init__.py", "compact_perception/data/__init__.py", "compact_perception/data/loader.py",
     *(f"compact_perception/learning/{m}.py" for m in (
         "__init__", "losses", "metrics", "onnx_export", "plan", "schedule", "views")),

@@ -31,6 +31,7 @@ from .io import read_json, write_json, write_text
 from .layout import cache_dir, floor_paths, run_paths
 from .params.base import SCALES, resolve_scale
 from .params.errors import shown
+from .params.former import RENAMED_KEYS, UNRECORDED_VALUES
 
 __all__ = ["RECORD_VERSION", "RECORD_VERSIONS", "DEVICES", "RUN_KEYS", "SUMMARY_KEYS", "NEUTRAL_KEYS",
            "CUDA_ONLY_KEYS", "UNRECORDED_VALUES", "CURVE_NAMES", "STATUS_COMPLETE", "STATUS_INCOMPLETE",
@@ -104,13 +105,6 @@ NEUTRAL_KEYS: tuple[str, ...] = ("world.workers", "preprocess.workers", "train.n
 
 #: Settings that act on a CUDA GPU only: a run recorded on a CPU is the same whatever they say.
 CUDA_ONLY_KEYS: tuple[str, ...] = ("train.deterministic", "train.tf32")
-#: Keys added to params.yaml after runs were recorded, each with the value that does what the code
-#: did before the key existed: a record without the key was made at that value.
-UNRECORDED_VALUES: dict[str, Any] = {"evaluate.batch_size": 1}
-#: Keys renamed after runs were recorded, as (pattern of the recorded key, today's key): the value
-#: means the same under either name (``datasets.<ds>.source`` was the source's id before the
-#: section held the source's own settings).
-RENAMED_KEYS: tuple[tuple[str, str], ...] = ((r"^datasets\.([^.]+)\.source$", r"datasets.\1.source.id"),)
 
 
 def _today_name(key: str) -> str:

@@ -29,8 +29,9 @@ This package holds the params, one module per concern, and this module is its on
 (callers import from here): :mod:`.base` (``Strict``, ``Scaled`` and the one resolver of
 ``scale``, the count bounds), :mod:`.recipe` (a model's recipe and its merging), :mod:`.schema`
 (the sections and ``Params``), :mod:`.errors` (``ParamsError`` and its one-line messages),
-:mod:`.file` (reading the file), :mod:`.audit` (which keys a stage reads) and :mod:`.sources`
-(the data sources' registrations: each one's settings section, label and stage deps).
+:mod:`.file` (reading the file), :mod:`.audit` (which keys a stage reads), :mod:`.sources`
+(the data sources' registrations: each one's settings section, label and stage deps) and
+:mod:`.former` (the layouts params were written in before, read in today's).
 """
 from __future__ import annotations
 

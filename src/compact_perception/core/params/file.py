@@ -3,15 +3,19 @@ UTF-8, not YAML, that writes a key twice in one mapping or whose aliases expand 
 :data:`MAX_PARAMS_VALUES` values, then validates it (:func:`parse_params`)."""
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import yaml
 
 from .errors import ParamsError, _one_line
+from .former import upgrade_params
 from .schema import Params, parse_params
 
 __all__ = ["load_params", "UniqueKeyLoader", "DuplicateKeyError", "ExpansionError", "MAX_PARAMS_BYTES",
            "MAX_PARAMS_VALUES"]
+
+log = logging.getLogger(__name__)
 
 #: The most values (mappings, lists and scalars; an alias counts as everything its anchor holds)
 #: a params document may hold. params.yaml holds under a thousand; an alias-free file under
@@ -144,10 +148,12 @@ def _params_text(path: Path) -> str:
         raise ParamsError(f"{path}: not UTF-8 text (byte 0x{raw[err.start]:02x} at line {line})") from None
 
 
-def load_params(path: str | Path = "params.yaml") -> Params:
+def load_params(path: str | Path = "params.yaml", *, former: bool = False) -> Params:
     """Read and validate params.yaml (a key written twice in one mapping is an error; a file
     that is not UTF-8 or larger than :data:`MAX_PARAMS_BYTES` is refused before YAML reads it;
-    one whose aliases expand past :data:`MAX_PARAMS_VALUES` values before anything is built)."""
+    one whose aliases expand past :data:`MAX_PARAMS_VALUES` values before anything is built).
+    ``former``: a file of an earlier commit, whose layouts :mod:`.former` lists, is read in
+    today's layout first (each change logged); the pipeline's stages never pass it."""
     path = Path(path)
     text = _params_text(path)
     try:
@@ -158,4 +164,8 @@ def load_params(path: str | Path = "params.yaml") -> Params:
         raise ParamsError(f"{path}: not valid YAML: {_one_line(err)}") from None
     except RecursionError:
         raise ParamsError(f"{path}: not valid YAML: nested too deeply") from None
+    if former:
+        data, changes = upgrade_params(data)
+        for change in changes:
+            log.info("%s: former layout read as today's: %s", path, change)
     return parse_params(data, str(path))
