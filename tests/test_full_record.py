@@ -11,6 +11,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pandas as pd
 import pytest
 import yaml
 
@@ -222,3 +223,35 @@ def test_the_script_records_a_copy_at_a_commit_whose_params_are_in_a_former_layo
     settings = json.loads(out.read_text())["runs"][0]["settings"]
     assert settings["datasets.B.source.id"] == "sim" and "datasets.B.source" not in settings
     assert settings["evaluate.batch_size"] == 1
+
+
+def test_records_of_one_cache_agree_though_one_was_made_before_the_meta_held_its_hashes(tmp_path: Path) -> None:
+    """Set B's compact records (99ba736) hold a cache meta without ``sha256``, which the meta
+    gained later; its baselines' record (6ca23b2) holds it. They are one cache: the report reads
+    both and keeps the hashes. A cache that differs in any other key, or in the hashes where both
+    hold them, is still refused."""
+    _tree(tmp_path / "tree")
+    rec = _record(tmp_path / "tree")
+    (tmp_path / "records").mkdir()
+    older = json.loads(json.dumps(rec))
+    older["runs"] = [r for r in older["runs"] if r["model"] == "compact_1l"]
+    rec["runs"] = [r for r in rec["runs"] if r["model"] != "compact_1l"]
+    rec["cache_meta"]["sha256"] = {"test": {"de.npy": "ab" * 32}}
+    older["cache_meta"].pop("sha256", None)
+    (tmp_path / "records/B_a.json").write_text(json.dumps(older))
+    (tmp_path / "records/B_b.json").write_text(json.dumps(rec))
+    build_full_report(load_records(tmp_path / "records"), _full_params(), tmp_path / "full")
+    rows = set(pd.read_csv(tmp_path / "full/tables/table2.csv").query("dataset == 'B'")["row_id"])
+    assert set(COMPACT) <= rows  # 1L from the older record, the others from the newer
+    tree = tmp_path / "written"
+    for r in (older, rec):
+        write_tree(r, tree)
+    assert json.loads((tree / "data/cache/B/meta.json").read_text())["sha256"] == rec["cache_meta"]["sha256"]
+    for change in (lambda m: m.update(sha256={"test": {"de.npy": "cd" * 32}}),
+                   lambda m: m.update(resolution=16)):
+        other = json.loads(json.dumps(older))
+        other["cache_meta"]["sha256"] = dict(rec["cache_meta"]["sha256"])
+        change(other["cache_meta"])
+        (tmp_path / "records/B_a.json").write_text(json.dumps(other))
+        with pytest.raises(ReportInputError, match="the records' caches differ"):
+            build_full_report(load_records(tmp_path / "records"), _full_params(), tmp_path / "full2")

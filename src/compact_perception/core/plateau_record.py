@@ -34,8 +34,9 @@ from .params.errors import shown
 from .params.former import RENAMED_KEYS, UNRECORDED_VALUES
 
 __all__ = ["RECORD_VERSION", "RECORD_VERSIONS", "DEVICES", "RUN_KEYS", "SUMMARY_KEYS", "NEUTRAL_KEYS",
-           "CUDA_ONLY_KEYS", "UNRECORDED_VALUES", "CURVE_NAMES", "STATUS_COMPLETE", "STATUS_INCOMPLETE",
-           "run_problem", "record_problem", "settings_at", "changed_keys", "record_runs", "write_tree"]
+           "CUDA_ONLY_KEYS", "UNRECORDED_VALUES", "CACHE_META_ADDED", "CURVE_NAMES", "STATUS_COMPLETE",
+           "STATUS_INCOMPLETE", "run_problem", "record_problem", "settings_at", "changed_keys", "record_runs",
+           "same_cache", "write_tree"]
 
 RECORD_VERSION = 2
 RECORD_VERSIONS = (1, 2)
@@ -420,18 +421,36 @@ def record_runs(root: Path, params: Any, dataset: str, seeds: Mapping[str, Seque
 
 
 # ----------------------------------------------------------------------------- the record as a run tree
+#: Keys a cache's ``meta.json`` gained after runs were recorded (``sha256``, each cache file's
+#: hash): a record made before holds every other key of the same cache.
+CACHE_META_ADDED: tuple[str, ...] = ("sha256",)
+
+
+def same_cache(a: Mapping[str, Any], b: Mapping[str, Any]) -> bool:
+    """Whether two records' cache metas describe one cache: equal on every key, but for a key of
+    :data:`CACHE_META_ADDED` that one of them lacks (it was recorded before the key existed)."""
+    def kept(meta: Mapping[str, Any], other: Mapping[str, Any]) -> dict:
+        return {k: v for k, v in meta.items() if k not in CACHE_META_ADDED or k in other}
+    return kept(a, b) == kept(b, a)
+
+
 def write_tree(record: Mapping[str, Any], root: Path) -> list[tuple[str, int]]:
     """Write what a version-2 record holds as the files the pipeline wrote, under ``root`` in the
     pipeline's layout (:mod:`.layout`): each complete run's ``summary.json``, dvclive series,
     ``metrics.json`` and ``per_frame.csv``, the floor's files and the cache's ``meta.json``, so
     the report reads a record with the code it reads a run tree with. Returns the (model, seed)
     of the runs written. Two records of one dataset (its compact runs, its baselines) go into one
-    tree: their floors and caches must agree, else :class:`~.errors.ReportInputError`."""
+    tree: their floors and caches must agree (:func:`same_cache`; the tree keeps the meta that
+    holds the most), else :class:`~.errors.ReportInputError`."""
     ds = record["dataset"]
     meta_path = cache_dir(ds, root) / "meta.json"
-    if meta_path.is_file() and read_json(meta_path) != record["cache_meta"]:
-        raise ReportInputError(f"{ds}: the records' caches differ (data/cache/{ds}/meta.json): one dataset, one cache")
-    write_json(meta_path, record["cache_meta"])
+    meta = dict(record["cache_meta"])
+    if meta_path.is_file():
+        before = read_json(meta_path)
+        if not same_cache(before, meta):
+            raise ReportInputError(f"{ds}: the records' caches differ (data/cache/{ds}/meta.json): one dataset, one cache")
+        meta = {**before, **meta}
+    write_json(meta_path, meta)
     for tid, entry in record["floor"].items():
         fp = floor_paths(ds, tid, root)
         if fp.metrics_path.is_file() and read_json(fp.metrics_path) != entry["metrics"]:
