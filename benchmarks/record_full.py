@@ -7,7 +7,8 @@
 Run mode (``--workdir``): clones this repository at ``--commit`` (default ``HEAD``) into the
 work folder, or reuses a clone already there at that commit (a stopped part resumes: each run
 starts again from its ``last.pt``); sets its params.yaml to ``scale: full``, this dataset and the
-models (and, with ``--seeds``, those seeds only), through DVC's own YAML writer; creates its
+models (and, with ``--seeds``, those seeds only) and no arm of the loss-balancing study (which set
+A's train stage would otherwise train beside them), through DVC's own YAML writer; creates its
 ``.venv`` (``make setup``) and runs the pipeline's own stages, ``dvc repro train@<ds>
 evaluate@<ds>`` (the data stages before them as DVC needs), logging to ``<workdir>/record_full.log``.
 The copy's params.yaml is that commit's: one written in a layout since replaced is read in today's
@@ -100,8 +101,8 @@ def prepare(workdir: Path, commit: str) -> str:
 
 
 def set_params(path: Path, dataset: str, models: list[str], seeds: list[int] | None) -> None:
-    """``scale: full``, this dataset, these models (and seeds) in the copy's params.yaml, written
-    by DVC's own YAML writer (comments and order kept), then validated."""
+    """``scale: full``, this dataset, these models (and seeds) and no study arm in the copy's
+    params.yaml, written by DVC's own YAML writer (comments and order kept), then validated."""
     from dvc.utils.serialize import modify_yaml  # the writer `dvc exp run -S` uses
 
     with modify_yaml(path) as data:
@@ -110,6 +111,9 @@ def set_params(path: Path, dataset: str, models: list[str], seeds: list[int] | N
         if dataset in data["sim_ids"]:
             data["sim_ids"] = [dataset]
         data["model_ids"] = models
+        # the loss-balancing study trains in the same train stage (set A at full): not this part's runs
+        study = data["study"]["datasets"]
+        data["study"]["datasets"] = {**study, "full": []} if isinstance(study, dict) else []
         if seeds is not None:
             data["baseline_seeds"]["full"] = seeds
             data["datasets"][dataset]["training"]["seeds"]["full"] = seeds

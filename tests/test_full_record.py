@@ -255,3 +255,21 @@ def test_records_of_one_cache_agree_though_one_was_made_before_the_meta_held_its
         (tmp_path / "records/B_a.json").write_text(json.dumps(other))
         with pytest.raises(ReportInputError, match="the records' caches differ"):
             build_full_report(load_records(tmp_path / "records"), _full_params(), tmp_path / "full2")
+
+
+def test_a_part_sets_the_copys_params_to_its_runs_alone(tmp_path: Path) -> None:
+    """A part of set A ran the study's 27 arms beside its own runs (train@A trains both at full):
+    the copy's params now hold this part's dataset, models and seeds and no study arm."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("record_full", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    path = tmp_path / "params.yaml"
+    shutil.copy(ROOT / "params.yaml", path)
+    assert load_params(path).model_copy(update={"scale": "full"}).study_datasets == ["A"]
+    module.set_params(path, "A", ["chen_bev", "polarnet"], [1])
+    params = load_params(path)
+    assert (params.scale, params.dataset_ids, params.model_ids) == ("full", ["A"], ["chen_bev", "polarnet"])
+    assert params.study_datasets == [] and params.seeds_of("baseline", "A") == [1]
+    assert "# beyond the paper" in path.read_text()  # DVC's writer keeps the comments
