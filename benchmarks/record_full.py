@@ -41,7 +41,7 @@ sys.path.insert(0, str(ROOT / "src"))
 
 from compact_perception.core import io  # noqa: E402
 from compact_perception.core.catalog import MODELS  # noqa: E402
-from compact_perception.core.params import ParamsError, load_params  # noqa: E402
+from compact_perception.core.params import Params, ParamsError, load_params  # noqa: E402
 from compact_perception.core.errors import ReportInputError  # noqa: E402
 from compact_perception.core.plateau_record import STATUS_COMPLETE, record_problem, record_runs  # noqa: E402
 
@@ -100,9 +100,9 @@ def prepare(workdir: Path, commit: str) -> str:
     return want
 
 
-def set_params(path: Path, dataset: str, models: list[str], seeds: list[int] | None) -> None:
+def set_params(path: Path, dataset: str, models: list[str], seeds: list[int] | None) -> Params:
     """``scale: full``, this dataset, these models (and seeds) and no study arm in the copy's
-    params.yaml, written by DVC's own YAML writer (comments and order kept), then validated."""
+    params.yaml, written by DVC's own YAML writer (comments and order kept); returns them validated."""
     from dvc.utils.serialize import modify_yaml  # the writer `dvc exp run -S` uses
 
     with modify_yaml(path) as data:
@@ -117,7 +117,7 @@ def set_params(path: Path, dataset: str, models: list[str], seeds: list[int] | N
         if seeds is not None:
             data["baseline_seeds"]["full"] = seeds
             data["datasets"][dataset]["training"]["seeds"]["full"] = seeds
-    load_params(path, former=True)
+    return load_params(path, former=True)
 
 
 def run_stages(workdir: Path, dataset: str) -> int:
@@ -183,8 +183,9 @@ def main(argv: list[str] | None = None) -> None:
         if args.workdir:
             commit = prepare(args.workdir.resolve(), args.commit)
             models = args.models or list(load_params(args.workdir / "params.yaml", former=True).model_ids)
-            set_params(args.workdir / "params.yaml", args.dataset, models, args.seeds)
-        params = load_params(root / "params.yaml", former=True)
+            params = set_params(args.workdir / "params.yaml", args.dataset, models, args.seeds)
+        else:
+            params = load_params(root / "params.yaml", former=True)
         models = args.models or list(params.model_ids)
         unknown = [m for m in models if m not in MODELS or m not in params.train.models]
         if unknown:
