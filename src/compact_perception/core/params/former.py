@@ -59,7 +59,8 @@ def upgrade_params(data: Any) -> tuple[Any, list[str]]:
         return data, []
     data = copy.deepcopy(data)
     changes: list[str] = []
-    for ds, section in (data.get("datasets") or {}).items() if isinstance(data.get("datasets"), dict) else ():
+    datasets = data.get("datasets")
+    for ds, section in datasets.items() if isinstance(datasets, dict) else ():
         if isinstance(section, dict) and isinstance(section.get("source"), str):
             changes += [f"datasets.{ds}.{c}" for c in _source_section(section)]
     for key, value in UNRECORDED_VALUES.items():
