@@ -3,6 +3,8 @@
     .venv/bin/python benchmarks/record_full.py --dataset B --part compact \
         --models compact_1l compact_15l compact_15l_mgn compact_15l_mgn_authors --workdir /tmp/full_B
     .venv/bin/python benchmarks/record_full.py --dataset B --root DIR --part compact ...   # record only
+    .venv/bin/python benchmarks/record_full.py --dataset A --part study_uw_dwa --arms uw dwa \
+        --commit C --workdir /tmp/full_A                  # loss-balancing study arms (see below)
 
 Run mode (``--workdir``): clones this repository at ``--commit`` (default ``HEAD``) into the
 work folder, or reuses a clone already there at that commit (a stopped part resumes: each run
@@ -22,6 +24,13 @@ commit, the machine (CPU family and model) and the command that re-creates the p
 the command that re-creates that run alone. A run that failed or did not finish is recorded as
 ``incomplete``, with no number. ``--check RECORD`` compares the runs just recorded with the same
 runs of an earlier record and exits 1 unless every recorded number is equal.
+
+A study part (``--arms``) trains and records arms of the loss-balancing study (params ``study``)
+on the dataset: the copy's params run the study there with these arms alone, and as its models
+``study.base_model`` alone, whose runs the arms are compared with and which the params need. Those
+base runs are not recorded (the dataset's compact record holds them): run the part in the clone
+(``--workdir``, same ``--commit``) where the compact part trained them, and the train stage skips
+them as complete; in a fresh clone they train first. Each arm's run is recorded with its ``arm``.
 
 Bad input is one line ``error: ...``, exit status 1; nothing is written where the record cannot be
 complete, and the file at ``--out`` is replaced atomically.
@@ -43,7 +52,8 @@ from compact_perception.core import io  # noqa: E402
 from compact_perception.core.catalog import MODELS  # noqa: E402
 from compact_perception.core.params import Params, ParamsError, load_params  # noqa: E402
 from compact_perception.core.errors import ReportInputError  # noqa: E402
-from compact_perception.core.plateau_record import STATUS_COMPLETE, record_problem, record_runs  # noqa: E402
+from compact_perception.core.plateau_record import (STATUS_COMPLETE, record_problem, record_runs,  # noqa: E402
+                                                    run_name)
 
 log = logging.getLogger("record_full")
 #: What a run's record is compared on by ``--check`` (the numbers the pipeline computed).
@@ -100,9 +110,12 @@ def prepare(workdir: Path, commit: str) -> str:
     return want
 
 
-def set_params(path: Path, dataset: str, models: list[str], seeds: list[int] | None) -> Params:
+def set_params(path: Path, dataset: str, models: list[str], seeds: list[int] | None,
+               arms: list[str] | None = None) -> Params:
     """``scale: full``, this dataset, these models (and seeds) and no study arm in the copy's
-    params.yaml, written by DVC's own YAML writer (comments and order kept); returns them validated."""
+    params.yaml, written by DVC's own YAML writer (comments and order kept); returns them validated.
+    With ``arms`` (a study part): the study on this dataset with these arms alone, and
+    ``study.base_model`` as the only model (``models`` is not used)."""
     from dvc.utils.serialize import modify_yaml  # the writer `dvc exp run -S` uses
 
     with modify_yaml(path) as data:
@@ -110,14 +123,26 @@ def set_params(path: Path, dataset: str, models: list[str], seeds: list[int] | N
         data["dataset_ids"] = [dataset]
         if dataset in data["sim_ids"]:
             data["sim_ids"] = [dataset]
-        data["model_ids"] = models
-        # the loss-balancing study trains in the same train stage (set A at full): not this part's runs
+        # the loss-balancing study trains in the same train stage (set A at full): a part's runs
+        # are its models' or, for a study part, its arms' (beside the base model, which they need)
         study = data["study"]["datasets"]
-        data["study"]["datasets"] = {**study, "full": []} if isinstance(study, dict) else []
+        data["study"]["datasets"] = {**study, "full": [dataset] if arms else []} if isinstance(study, dict) else []
+        data["model_ids"] = [data["study"]["base_model"]] if arms else models
+        if arms:
+            data["study"]["arm_ids"] = list(arms)
+            data["study"]["arms"] = {a: data["study"]["arms"][a] for a in arms}
         if seeds is not None:
             data["baseline_seeds"]["full"] = seeds
             data["datasets"][dataset]["training"]["seeds"]["full"] = seeds
     return load_params(path, former=True)
+
+
+def _check_arms(arms: list[str] | None, params: Params, path: Path) -> None:
+    """Each of ``arms`` is an arm of the params' study (one line naming the file otherwise)."""
+    unknown = [a for a in arms or () if a not in params.study.arms]
+    if unknown or len(set(arms or ())) != len(arms or ()):
+        raise ParamsError(f"--arms: expected distinct arms of study.arms in {path} "
+                          f"({', '.join(params.study.arm_ids)}) (got {arms})")
 
 
 def run_stages(workdir: Path, dataset: str) -> int:
@@ -141,10 +166,10 @@ def compare(new: dict, old_path: Path) -> list[str]:
     problem = record_problem(old)
     if problem:
         raise RecordError(f"{old_path}: {problem}")
-    before = {(r["model"], r["seed"]): r for r in old["runs"] if r.get("status") == STATUS_COMPLETE}
+    before = {(run_name(r), r["seed"]): r for r in old["runs"] if r.get("status") == STATUS_COMPLETE}
     diffs = []
     for run in new["runs"]:
-        key = (run["model"], run["seed"])
+        key = (run_name(run), run["seed"])
         if run.get("status") != STATUS_COMPLETE:
             diffs.append(f"{key[0]} seed {key[1]}: not complete here")
         elif key not in before:
@@ -158,7 +183,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--dataset", required=True, help="the dataset id (params dataset_ids)")
     ap.add_argument("--part", default=None, help="the part's name, in the record's file name (default: all)")
-    ap.add_argument("--models", nargs="+", help="model ids (default: the copy's model_ids)")
+    what = ap.add_mutually_exclusive_group()
+    what.add_argument("--models", nargs="+", help="model ids (default: the copy's model_ids)")
+    what.add_argument("--arms", nargs="+", help="a study part: these arms of the loss-balancing study (params "
+                                                "study.arm_ids), on study.base_model")
     ap.add_argument("--seeds", nargs="+", type=int, help="only these seeds (default: the params' at full)")
     where = ap.add_mutually_exclusive_group(required=True)
     where.add_argument("--workdir", type=Path, help="run: the scratch clone to run the stages in")
@@ -182,11 +210,14 @@ def main(argv: list[str] | None = None) -> None:
         root = args.workdir or args.root
         if args.workdir:
             commit = prepare(args.workdir.resolve(), args.commit)
-            models = args.models or list(load_params(args.workdir / "params.yaml", former=True).model_ids)
-            params = set_params(args.workdir / "params.yaml", args.dataset, models, args.seeds)
+            before = load_params(args.workdir / "params.yaml", former=True)
+            _check_arms(args.arms, before, args.workdir / "params.yaml")
+            models = args.models or list(before.model_ids)
+            params = set_params(args.workdir / "params.yaml", args.dataset, models, args.seeds, args.arms)
         else:
             params = load_params(root / "params.yaml", former=True)
-        models = args.models or list(params.model_ids)
+            _check_arms(args.arms, params, root / "params.yaml")
+        models = [] if args.arms else (args.models or list(params.model_ids))
         unknown = [m for m in models if m not in MODELS or m not in params.train.models]
         if unknown:
             raise ParamsError(f"--models: {unknown} not models of {root / 'params.yaml'}")
@@ -195,16 +226,19 @@ def main(argv: list[str] | None = None) -> None:
         rc = run_stages(args.workdir, args.dataset) if args.workdir else 0
         commit = commit if args.workdir else commit_of(root)
         seeds = {m: list(params.seeds_of(MODELS[m].group, args.dataset)) for m in models}
+        base_seeds = list(params.seeds_of(MODELS[params.study.base_model].group, args.dataset))
+        arms = {a: base_seeds for a in args.arms or ()}
         base = ["python", "benchmarks/record_full.py", "--dataset", args.dataset, "--commit", commit[:12]]
-        part_cmd = base + [*(["--part", args.part] if args.part else []), "--models", *models,
+        part_cmd = base + [*(["--part", args.part] if args.part else []),
+                           *(["--arms", *args.arms] if args.arms else ["--models", *models]),
                            *(["--seeds", *map(str, args.seeds)] if args.seeds else []), "--workdir", "<scratch folder>"]
         provenance = {"commit": commit, "machine": args.machine or machine(),
                       "command": shlex.join(part_cmd) + (f" (stages exited {rc})" if rc else "")}
-        record = record_runs(root, params, args.dataset, seeds, provenance,
-                             run_command=lambda m, k: shlex.join(base + ["--models", m, "--seeds", str(k),
-                                                                         "--workdir", "<scratch folder>",
-                                                                         "--out", "<file>", "--check",
-                                                                         f"benchmarks/records/full/{out.name}"]))
+        record = record_runs(root, params, args.dataset, seeds, provenance, arms=arms,
+                             run_command=lambda m, k, arm: shlex.join(
+                                 base + (["--arms", arm] if arm else ["--models", m]) + [
+                                     "--seeds", str(k), "--workdir", "<scratch folder>", "--out", "<file>",
+                                     "--check", f"benchmarks/records/full/{out.name}"]))
         diffs = compare(record, args.check) if args.check else []
     except (ParamsError, ReportInputError, RecordError) as err:
         sys.exit(f"error: {err}")
@@ -214,11 +248,11 @@ def main(argv: list[str] | None = None) -> None:
         sys.exit(f"error: {out}: {err.strerror or err}")
     for r in record["runs"]:
         if r["status"] == STATUS_COMPLETE:
-            log.info("%s/%s/seed%d: %s after %d epochs (best %d), margins %s", r["dataset"], r["model"], r["seed"],
+            log.info("%s/%s/seed%d: %s after %d epochs (best %d), margins %s", r["dataset"], run_name(r), r["seed"],
                      r["stop_reason"], r["epochs_run"], r["best_epoch"],
                      {k: round(v, 3) for k, v in r["floor_margin"].items()})
         else:
-            log.warning("%s/%s/seed%d: incomplete (%s)", r["dataset"], r["model"], r["seed"], r["reason"])
+            log.warning("%s/%s/seed%d: incomplete (%s)", r["dataset"], run_name(r), r["seed"], r["reason"])
     log.info("wrote %s (%d runs)", out, len(record["runs"]))
     if args.check:
         if diffs:

@@ -43,7 +43,7 @@ def _tree(root: Path, ds: str = "B") -> None:
 def _record(root: Path, ds: str = "B", models=COMPACT, seeds=(0, 1, 2)) -> dict:
     return record_runs(root, _full_params(), ds, {m: list(seeds) for m in models},
                        {"commit": "abc123", "machine": "a CPU (family 6 model 167), 2 cores", "command": "x"},
-                       run_command=lambda m, k: f"record {m} {k}")
+                       run_command=lambda m, k, arm: f"record {m} {k}")
 
 
 def test_a_record_holds_every_file_the_report_reads_and_writes_them_back(tmp_path: Path) -> None:
@@ -273,3 +273,140 @@ def test_a_part_sets_the_copys_params_to_its_runs_alone(tmp_path: Path) -> None:
     assert (params.scale, params.dataset_ids, params.model_ids) == ("full", ["A"], ["chen_bev", "polarnet"])
     assert params.study_datasets == [] and params.seeds_of("baseline", "A") == [1]
     assert "# beyond the paper" in path.read_text()  # DVC's writer keeps the comments
+
+
+# ----------------------------------------------------------------------------- the loss-balancing study at full
+ARMS = ("uw", "single_de")
+
+
+def _study_tree(root: Path) -> None:
+    """Set A's compact runs and two study arms at seeds 0-2: each arm's run is a compact_15l run
+    of the fixture, moved into the study's folders (runs/A/study/<arm>/seed<k>/ and its results)."""
+    _tree(root, "A")
+    for i, arm in enumerate(ARMS):
+        src = root.parent / f"arm_{arm}"
+        build_tree(src, ("A",), n_frames=40, models=("compact_15l",), seeds=(0, 1, 2), bases=None,
+                   noise=0.01 + 0.002 * i)
+        for top in ("runs", "results", "data/eval"):
+            for k in (0, 1, 2):
+                dest = root / top / "A" / "study" / arm / f"seed{k}"
+                dest.parent.mkdir(parents=True, exist_ok=True)
+                shutil.move(str(src / top / "A" / "compact_15l" / f"seed{k}"), str(dest))
+
+
+def _study_record(root: Path) -> dict:
+    return record_runs(root, _full_params(), "A", {}, {"commit": "def456", "machine": "m", "command": "y"},
+                       run_command=lambda m, k, arm: f"record {m} {arm} {k}", arms={a: [0, 1, 2] for a in ARMS})
+
+
+def test_a_study_part_records_its_arms_and_the_report_at_full_shows_the_study(tmp_path: Path) -> None:
+    """A record of study arms (record_full.py --arms) holds each arm's run under its arm, on the
+    base model, with the arm's settings; written back, each lands in the study's folders; the
+    report at full builds the study's table from it beside the compact record and lists the arms
+    of the params no record holds."""
+    tree = tmp_path / "tree"
+    _study_tree(tree)
+    study = _study_record(tree)
+    assert record_problem(json.loads(json.dumps(study))) is None
+    assert {(r["model"], r["arm"], r["seed"]) for r in study["runs"]} == {
+        ("compact_15l", a, k) for a in ARMS for k in (0, 1, 2)}
+    run = next(r for r in study["runs"] if r["arm"] == "uw" and r["seed"] == 1)
+    assert run["command"] == "record compact_15l uw 1"
+    assert run["settings"]["study.arms.uw.weighting"] == "uw" and run["settings"]["study.base_model"] == "compact_15l"
+    assert not any(k.startswith("train.models.") for k in run["settings"])
+    written = write_tree(study, tmp_path / "back")
+    assert ("compact_15l", 2, "single_de") in written
+    rel = "results/A/study/uw/seed1/metrics.json"
+    assert json.loads((tmp_path / "back" / rel).read_text()) == json.loads((tree / rel).read_text())
+    assert (tmp_path / "back/data/eval/A/study/single_de/seed0/per_frame.csv").is_file()
+
+    records = tmp_path / "records"
+    records.mkdir()
+    (records / "A_compact.json").write_text(json.dumps(_record(tree, "A")))
+    (records / "A_study_a.json").write_text(json.dumps(study))
+    params = _full_params()
+    build_full_report(load_records(records), params, tmp_path / "full")
+    page = (tmp_path / "full/index.md").read_text()
+    assert "| Set A | study arm `uw` | 0, 1, 2 | [A_study_a.json](../../benchmarks/records/full/A_study_a.json) | def456 |" \
+        in page
+    not_recorded = page.split("## Not recorded yet", 1)[1].split("\n## ", 1)[0]
+    set_a = not_recorded.split("Set A:", 1)[1].split("\n", 1)[0]
+    assert "the loss-balancing study's arms `gradnorm`, `dwa`" in set_a and "`uw`" not in set_a
+    assert "`single_de`" not in set_a and "15L+MGN" not in set_a
+    weighting = pd.read_csv(tmp_path / "full/tables/weighting.csv")
+    assert {"compact_15l", "compact_15l_mgn", "uw", "single_de"} <= set(weighting["method"])
+    assert "## Loss-balancing study" in page and (tmp_path / "full/figures").is_dir()
+    # the same arm in two records is refused, like any run
+    (records / "A_study_b.json").write_text(json.dumps(study))
+    with pytest.raises(ReportInputError, match=r"A_study_b.json: study:uw seed 0 on A is also in .*A_study_a.json"):
+        build_full_report(load_records(records), params, tmp_path / "full2")
+
+
+@pytest.mark.parametrize("change, problem", [
+    (lambda r: r["runs"][0].update(arm="Bad arm"), "runs[0].arm: expected a study arm's id"),
+    (lambda r: r["runs"][1].update(seed=0), "runs[1]: study:uw seed 0 recorded twice"),
+])
+def test_a_bad_study_record_is_one_line_naming_the_field(tmp_path: Path, change, problem) -> None:
+    _study_tree(tmp_path / "tree")
+    rec = _study_record(tmp_path / "tree")
+    change(rec)
+    path = tmp_path / "A.json"
+    path.write_text(json.dumps(rec))
+    with pytest.raises(ReportInputError) as exc:
+        load_record(path)
+    assert str(exc.value).startswith(f"{path}: {problem}")
+
+
+def test_a_study_arm_is_flagged_by_its_own_keys_and_the_base_models() -> None:
+    from compact_perception.report.plateau import PlateauRun, changed_settings
+    from compact_perception.core.plateau_record import settings_at
+
+    params = _full_params()
+    run = PlateauRun("A", "compact_15l", 0, 5, 3, 100, "plateau", 1.0, {"tm": 0.1},
+                     settings_at(params, "compact_15l", "A", "full", "uw"), arm="uw")
+    assert changed_settings(run, params, "full") == []
+    data = yaml.safe_load((ROOT / "params.yaml").read_text())
+    data["study"]["arms"]["uw"]["uw"]["lr"] = 0.05
+    data["study"]["arms"]["dwa"]["dwa"]["temperature"] = 3.0   # another arm's: not this run's
+    assert changed_settings(run, parse_params({**data, "scale": "full"}), "full") == ["study.arms.uw.uw.lr"]
+    data = yaml.safe_load((ROOT / "params.yaml").read_text())
+    del data["study"]["arms"]["uw"]
+    data["study"]["arm_ids"].remove("uw")
+    assert changed_settings(run, parse_params({**data, "scale": "full"}), "full") == ["study.arms.uw"]
+
+
+def test_a_study_part_sets_the_copys_params_to_its_arms_and_the_base_model(tmp_path: Path) -> None:
+    """A study part trains its arms (and the base model, which the study compares them with and
+    which the train stage skips where the clone has it complete): the copy's params run the study
+    on the part's dataset with these arms alone; an unknown arm is one line, nothing written."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("record_full", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    path = tmp_path / "params.yaml"
+    shutil.copy(ROOT / "params.yaml", path)
+    module.set_params(path, "A", ["chen_bev"], None, ["pcgrad", "cagrad"])
+    params = load_params(path)
+    assert (params.scale, params.model_ids, params.study_datasets) == ("full", ["compact_15l"], ["A"])
+    assert params.study.arm_ids == ["pcgrad", "cagrad"] and sorted(params.study.arms) == ["cagrad", "pcgrad"]
+    copy = tmp_path / "copy"
+    _study_tree(copy)
+    data = yaml.safe_load((ROOT / "params.yaml").read_text())
+    data.update({"scale": "full", "dataset_ids": ["A"]})
+    (copy / "params.yaml").write_text(yaml.safe_dump(data, sort_keys=False))
+    out = tmp_path / "A_study.json"
+    done = _script("--dataset", "A", "--part", "study", "--arms", *ARMS, "--root", str(copy), "--out", str(out))
+    assert done.returncode == 0, done.stderr
+    rec = json.loads(out.read_text())
+    assert {(r["arm"], r["seed"]) for r in rec["runs"]} == {(a, k) for a in ARMS for k in (0, 1, 2)}
+    assert "--arms uw single_de" in rec["command"]
+    assert "--arms uw --seeds 0" in next(r for r in rec["runs"] if r["arm"] == "uw" and r["seed"] == 0)["command"]
+    done = _script("--dataset", "A", "--arms", "uw", "--root", str(copy), "--out", str(tmp_path / "again.json"),
+                   "--check", str(out))
+    assert done.returncode == 0 and "every recorded number equals" in done.stderr, done.stderr
+    for bad in (["--arms", "nope"], ["--arms", "uw", "uw"]):
+        done = _script("--dataset", "A", "--root", str(copy), "--out", str(tmp_path / "x.json"), *bad)
+        assert done.returncode == 1 and done.stderr.strip().splitlines()[-1].startswith(
+            "error: --arms: expected distinct arms of study.arms in"), done.stderr
+        assert not (tmp_path / "x.json").exists()

@@ -3,7 +3,8 @@ definition, below both its writer (``benchmarks/record_plateau.py``: :func:`reco
 reader (the report: :func:`compact_perception.report.plateau.load_record`), so neither imports the
 other.
 
-The record holds, per run (dataset, model, seed): how it stopped (``epochs_run``, ``best_epoch``,
+The record holds, per run (dataset, model, seed; a run of the loss-balancing study also its
+``arm``, its model then ``study.base_model``): how it stopped (``epochs_run``, ``best_epoch``,
 ``max_epochs``, ``stop_reason``, ``train_seconds`` from ``summary.json``), its test-set margin
 over the floor per task metric (``floor_margin`` of ``metrics.json``, positive = better than the
 better trivial predictor), and the settings it was trained under (:func:`settings_at`); with the
@@ -28,7 +29,7 @@ from .catalog import DATASETS, MODELS, STOP_CAP, STOP_PLATEAU
 from .errors import ReportInputError
 from .floor_rule import FLOOR_PREDICTORS
 from .io import read_json, write_json, write_text
-from .layout import cache_dir, floor_paths, run_paths
+from .layout import RunPaths, cache_dir, floor_paths, run_paths, study_paths
 from .params.base import SCALES, resolve_scale
 from .params.errors import shown
 from .params.former import RENAMED_KEYS, UNRECORDED_VALUES
@@ -36,7 +37,7 @@ from .params.former import RENAMED_KEYS, UNRECORDED_VALUES
 __all__ = ["RECORD_VERSION", "RECORD_VERSIONS", "DEVICES", "RUN_KEYS", "SUMMARY_KEYS", "NEUTRAL_KEYS",
            "CUDA_ONLY_KEYS", "UNRECORDED_VALUES", "CACHE_META_ADDED", "CURVE_NAMES", "STATUS_COMPLETE",
            "STATUS_INCOMPLETE", "run_problem", "record_problem", "settings_at", "changed_keys", "record_runs",
-           "same_cache", "write_tree"]
+           "same_cache", "write_tree", "run_name"]
 
 RECORD_VERSION = 2
 RECORD_VERSIONS = (1, 2)
@@ -76,6 +77,15 @@ RUN_KEYS: dict[str, tuple[Callable[[Any], bool], str]] = {
     "floor_margin": (_margins, "a non-empty mapping of metric name to a finite number"),
     "settings": (_settings, "a mapping of params key to value"),
 }
+
+
+#: A study arm's id as a record holds it (a key of params ``study.arms``).
+ARM_PATTERN = re.compile(r"[a-z][a-z0-9_]{0,39}")
+
+
+def run_name(run: Mapping[str, Any]) -> str:
+    """A recorded run's model id, or ``study:<arm>`` for a run of the loss-balancing study."""
+    return f"study:{run['arm']}" if run.get("arm") is not None else str(run["model"])
 
 
 def run_problem(run: Any, keys: tuple[str, ...] = tuple(RUN_KEYS)) -> Optional[str]:
@@ -141,22 +151,25 @@ def _flatten(prefix: str, value: Any, out: dict[str, Any]) -> None:
         out[prefix] = value
 
 
-def settings_at(params: Any, model: str, dataset: str, scale: str) -> dict[str, Any]:
+def settings_at(params: Any, model: str, dataset: str, scale: str, arm: Optional[str] = None) -> dict[str, Any]:
     """Every params value that shapes a run of ``model`` on ``dataset`` at ``scale``, as dotted keys:
-    the model's merged recipe (``train.models.<model>``), its epoch cap (``max_epochs``: the
-    recipe's own, else the dataset's), the other ``train`` keys, ``seed``, ``world``,
+    the model's merged recipe (``train.models.<model>``; for study arm ``arm``, the arm's recipe,
+    the base model's with the arm's weighting, as ``study.arms.<arm>``, and ``study.base_model``),
+    its epoch cap (``max_epochs``: the recipe's own, else the dataset's), the other ``train`` keys, ``seed``, ``world``,
     ``preprocess``, ``evaluate`` and ``datasets.<dataset>`` (its seed list left out: a record keeps
     each run's seed; its ``source`` section holds its own source's settings only), less
     :data:`NEUTRAL_KEYS`. Read through the params' own sections (so a stage's params audit sees
     every key), each per-scale value taken at ``scale`` whatever the file's own ``scale``."""
     if scale not in SCALES:
         raise ValueError(f"scale {scale!r}: expected one of {list(SCALES)}")
-    recipe = resolve_scale(params.train.models[model].model_dump(mode="json", exclude_none=True), scale)
+    own = params.study_recipe(arm) if arm is not None else params.train.models[model]
+    recipe = resolve_scale(own.model_dump(mode="json", exclude_none=True), scale)
     section = resolve_scale(params.dataset(dataset).model_dump(mode="json"), scale)
     section.get("training", {}).pop("seeds", None)
-    out: dict[str, Any] = {"seed": params.seed,
-                           "max_epochs": params.max_epochs_of(params.train.models[model], dataset, scale)}
-    _flatten(f"train.models.{model}", recipe, out)
+    out: dict[str, Any] = {"seed": params.seed, "max_epochs": params.max_epochs_of(own, dataset, scale)}
+    if arm is not None:
+        out["study.base_model"] = params.study.base_model
+    _flatten(f"study.arms.{arm}" if arm is not None else f"train.models.{model}", recipe, out)
     _flatten("train", resolve_scale(params.train.model_dump(mode="json", exclude={"models", "recipe"}), scale), out)
     for name in ("world", "preprocess", "evaluate"):
         _flatten(name, resolve_scale(getattr(params, name).model_dump(mode="json"), scale), out)
@@ -223,6 +236,9 @@ STATUS_COMPLETE, STATUS_INCOMPLETE = "complete", "incomplete"
 
 
 def _v2_run_problem(run: Mapping[str, Any]) -> Optional[str]:
+    arm = run.get("arm")
+    if arm is not None and not (isinstance(arm, str) and ARM_PATTERN.fullmatch(arm)):
+        return f"arm: expected a study arm's id (letters, digits and _) or null (got {shown(arm)})"
     status = run.get("status")
     if status == STATUS_INCOMPLETE:
         for key in ("dataset", "model", "seed", "settings"):
@@ -231,7 +247,7 @@ def _v2_run_problem(run: Mapping[str, Any]) -> Optional[str]:
                 return problem
         if not _text(run.get("reason")):
             return f"reason: expected one line of at most {MAX_TEXT} characters (got {shown(run.get('reason'))})"
-        extra = sorted(set(run) - {"dataset", "model", "seed", "settings", "status", "reason", "command"})
+        extra = sorted(set(run) - {"dataset", "model", "seed", "arm", "settings", "status", "reason", "command"})
         return f"{extra[0]}: an incomplete run records no number" if extra else None
     if status != STATUS_COMPLETE:
         return f"status: expected {STATUS_COMPLETE!r} or {STATUS_INCOMPLETE!r} (got {shown(status)})"
@@ -295,7 +311,7 @@ def record_problem(data: Any) -> Optional[str]:
             return f"runs[{i}]" + ("." if isinstance(run, Mapping) else ": ") + problem
         if version == 2 and run["dataset"] != data["dataset"]:
             return f"runs[{i}].dataset: expected the record's {data['dataset']!r} (got {shown(run['dataset'])})"
-        key = (run["dataset"], run["model"], run["seed"])
+        key = (run["dataset"], run_name(run), run["seed"])
         if key in seen:
             return f"runs[{i}]: {key[1]} seed {key[2]} recorded twice"
         seen.add(key)
@@ -358,13 +374,44 @@ def _write_curves(live: Path, curves: Mapping[str, Sequence[Sequence[Any]]]) -> 
 
 
 # ----------------------------------------------------------------------------- the writer
+def _record_run(root: Path, dataset: str, model: str, seed: int, arm: Optional[str], paths: RunPaths,
+                settings: dict[str, Any], command: str) -> dict[str, Any]:
+    """One run's entry: ``complete`` with its files whole, or ``incomplete`` with what was found."""
+    ident = {"dataset": dataset, "model": model, "seed": int(seed), **({"arm": arm} if arm is not None else {})}
+    files = {"summary": paths.run_dir / "summary.json", "metrics": paths.metrics_path,
+             "per_frame": paths.eval_dir / "per_frame.csv"}
+    absent = [str(p.relative_to(root)) for p in files.values() if not p.is_file()]
+    if absent:
+        what = "no run folder" if not paths.run_dir.is_dir() else (
+            "stopped before it finished (last.pt only)" if paths.run_dir.joinpath("last.pt").is_file()
+            else "no checkpoint")
+        return {**ident, "status": STATUS_INCOMPLETE, "settings": settings, "command": command,
+                "reason": f"{what}; missing {', '.join(absent)}"[:MAX_TEXT]}
+    summ, metrics = read_json(files["summary"]), read_json(files["metrics"])
+    missing = [k for k in SUMMARY_KEYS if summ.get(k) is None]
+    if missing:
+        raise ReportInputError(f"{files['summary']}: missing {', '.join(missing)}")
+    if not isinstance(metrics.get("floor_margin"), dict):
+        raise ReportInputError(f"{files['metrics']}: no floor_margin (evaluate the run with its floor first)")
+    for path, data, keys in ((files["summary"], summ, SUMMARY_KEYS), (files["metrics"], metrics, ("floor_margin",))):
+        problem = run_problem(data, keys)
+        if problem:
+            raise ReportInputError(f"{path}: {problem}")
+    return {**ident, "status": STATUS_COMPLETE, **{k: summ[k] for k in SUMMARY_KEYS},
+            "floor_margin": {k: float(v) for k, v in sorted(metrics["floor_margin"].items())},
+            "settings": settings, "metrics": metrics, "per_frame": _per_frame_table(files["per_frame"]),
+            "summary": summ, "curves": _curves(paths.live), "command": command}
+
+
 def record_runs(root: Path, params: Any, dataset: str, seeds: Mapping[str, Sequence[int]],
-                provenance: Mapping[str, str], run_command: Optional[Callable[[str, int], str]] = None,
-                device: str = "cpu") -> dict[str, Any]:
+                provenance: Mapping[str, str], run_command: Optional[Callable[[str, int, Optional[str]], str]] = None,
+                device: str = "cpu", arms: Optional[Mapping[str, Sequence[int]]] = None) -> dict[str, Any]:
     """The record (version 2) of the runs under ``root`` of each model of ``seeds`` and its seeds
-    on ``dataset``, trained with ``params`` (its own ``scale``); ``provenance``: ``commit``,
-    ``machine``, ``command`` (the record's); ``run_command(model, seed)``: the command that
-    re-creates one run; ``device``: where they ran (``cpu`` or ``cuda``).
+    on ``dataset``, and of each study arm of ``arms`` and its seeds (``runs/<ds>/study/<arm>/``:
+    recorded with ``arm``, its model ``study.base_model``), trained with ``params`` (its own
+    ``scale``); ``provenance``: ``commit``, ``machine``, ``command`` (the record's);
+    ``run_command(model, seed, arm)``: the command that re-creates one run (``arm`` ``None`` but
+    for a study arm's); ``device``: where they ran (``cpu`` or ``cuda``).
 
     A run is ``complete`` when its ``summary.json``, ``metrics.json`` and ``per_frame.csv`` exist:
     it is recorded with those files whole and its dvclive series (:data:`CURVE_NAMES`); any other
@@ -373,39 +420,15 @@ def record_runs(root: Path, params: Any, dataset: str, seeds: Mapping[str, Seque
     ``meta.json`` are recorded once. Everything is checked against the record's schema (the one
     the report's reader checks with) before it is returned: a file that says otherwise raises
     :class:`~.errors.ReportInputError` naming it and the field, so nothing is written."""
+    planned: list[tuple[str, Optional[str], Sequence[int]]] = [(m, None, k) for m, k in seeds.items()]
+    planned += [(params.study.base_model, arm, k) for arm, k in (arms or {}).items()]
     runs = []
-    for model, model_seeds in seeds.items():
-        settings = settings_at(params, model, dataset, params.scale)
+    for model, arm, model_seeds in planned:
+        settings = settings_at(params, model, dataset, params.scale, arm)
         for seed in model_seeds:
-            paths = run_paths(dataset, model, seed, root)
-            command = run_command(model, int(seed)) if run_command else ""
-            files = {"summary": paths.run_dir / "summary.json", "metrics": paths.metrics_path,
-                     "per_frame": paths.eval_dir / "per_frame.csv"}
-            absent = [str(p.relative_to(root)) for p in files.values() if not p.is_file()]
-            if absent:
-                what = "no run folder" if not paths.run_dir.is_dir() else (
-                    "stopped before it finished (last.pt only)" if paths.run_dir.joinpath("last.pt").is_file()
-                    else "no checkpoint")
-                runs.append({"dataset": dataset, "model": model, "seed": int(seed), "status": STATUS_INCOMPLETE,
-                             "settings": settings, "command": command,
-                             "reason": f"{what}; missing {', '.join(absent)}"[:MAX_TEXT]})
-                continue
-            summ, metrics = read_json(files["summary"]), read_json(files["metrics"])
-            missing = [k for k in SUMMARY_KEYS if summ.get(k) is None]
-            if missing:
-                raise ReportInputError(f"{files['summary']}: missing {', '.join(missing)}")
-            if not isinstance(metrics.get("floor_margin"), dict):
-                raise ReportInputError(f"{files['metrics']}: no floor_margin (evaluate the run with its floor first)")
-            for path, data, keys in ((files["summary"], summ, SUMMARY_KEYS),
-                                     (files["metrics"], metrics, ("floor_margin",))):
-                problem = run_problem(data, keys)
-                if problem:
-                    raise ReportInputError(f"{path}: {problem}")
-            runs.append({"dataset": dataset, "model": model, "seed": int(seed), "status": STATUS_COMPLETE,
-                         **{k: summ[k] for k in SUMMARY_KEYS},
-                         "floor_margin": {k: float(v) for k, v in sorted(metrics["floor_margin"].items())},
-                         "settings": settings, "metrics": metrics, "per_frame": _per_frame_table(files["per_frame"]),
-                         "summary": summ, "curves": _curves(paths.live), "command": command})
+            paths = study_paths(arm, seed, dataset, root) if arm is not None else run_paths(dataset, model, seed, root)
+            command = run_command(model, int(seed), arm) if run_command else ""
+            runs.append(_record_run(root, dataset, model, seed, arm, paths, settings, command))
     floor = {}
     for tid in FLOOR_PREDICTORS:
         fp = floor_paths(dataset, tid, root)
@@ -434,12 +457,13 @@ def same_cache(a: Mapping[str, Any], b: Mapping[str, Any]) -> bool:
     return kept(a, b) == kept(b, a)
 
 
-def write_tree(record: Mapping[str, Any], root: Path) -> list[tuple[str, int]]:
+def write_tree(record: Mapping[str, Any], root: Path) -> list[tuple[str, int, Optional[str]]]:
     """Write what a version-2 record holds as the files the pipeline wrote, under ``root`` in the
     pipeline's layout (:mod:`.layout`): each complete run's ``summary.json``, dvclive series,
     ``metrics.json`` and ``per_frame.csv``, the floor's files and the cache's ``meta.json``, so
-    the report reads a record with the code it reads a run tree with. Returns the (model, seed)
-    of the runs written. Two records of one dataset (its compact runs, its baselines) go into one
+    the report reads a record with the code it reads a run tree with (a study arm's run under
+    ``runs/<ds>/study/<arm>/``). Returns the (model, seed, arm) of the runs written (``arm``
+    ``None`` but for a study arm's). Two records of one dataset (its compact runs, its baselines) go into one
     tree: their floors and caches must agree (:func:`same_cache`; the tree keeps the meta that
     holds the most), else :class:`~.errors.ReportInputError`."""
     ds = record["dataset"]
@@ -457,14 +481,15 @@ def write_tree(record: Mapping[str, Any], root: Path) -> list[tuple[str, int]]:
             raise ReportInputError(f"{ds}: the records' floors differ ({tid}): one dataset, one floor")
         write_json(fp.metrics_path, entry["metrics"])
         _write_per_frame(fp.eval_dir / "per_frame.csv", entry["per_frame"])
-    written = []
+    written: list[tuple[str, int, Optional[str]]] = []
     for run in record["runs"]:
         if run.get("status") != STATUS_COMPLETE:
             continue
-        paths = run_paths(ds, run["model"], run["seed"], root)
+        arm = run.get("arm")
+        paths = study_paths(arm, run["seed"], ds, root) if arm is not None else run_paths(ds, run["model"], run["seed"], root)
         write_json(paths.run_dir / "summary.json", run["summary"])
         _write_curves(paths.live, run["curves"])
         write_json(paths.metrics_path, run["metrics"])
         _write_per_frame(paths.eval_dir / "per_frame.csv", run["per_frame"])
-        written.append((run["model"], run["seed"]))
+        written.append((run["model"], run["seed"], arm))
     return written

@@ -8,10 +8,13 @@ A record holds the files the pipeline wrote for each run (``metrics.json``, ``pe
 (:func:`~compact_perception.core.plateau_record.write_tree`) and builds Table II, the metrics
 beyond the paper's, the claims scorecard and the paper comparison from it with the code that
 builds them from the default's runs (:func:`.index.read_inputs`, :func:`.index.write_tables`), so
-the two reports cannot score alike data differently. The page (``reports/full/index.md``) says, per
-dataset and model, which record (commit, machine) each row comes from and which of today's params
-keys would train it differently; a dataset or model of the params with no record is listed as not
-recorded, and a run a record has as incomplete is named.
+the two reports cannot score alike data differently. Where the params run the loss-balancing
+study at ``full`` on a recorded dataset, its table is built likewise (:func:`.index.write_study`)
+from the recorded study arms (a record's runs with an ``arm``) beside the paper's forms. The page
+(``reports/full/index.md``) says, per dataset and model (or study arm), which record (commit,
+machine) each row comes from and which of today's params keys would train it differently; a
+dataset, model or study arm of the params with no record is listed as not recorded, and a run a
+record has as incomplete is named.
 """
 from __future__ import annotations
 
@@ -19,6 +22,7 @@ import logging
 import os
 import shutil
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Optional, Sequence
 
@@ -27,11 +31,13 @@ import pandas as pd
 from ..core import io
 from ..core.catalog import MODELS
 from ..core.errors import ReportInputError
-from ..core.plateau_record import STATUS_COMPLETE, write_tree
-from .index import ReportInputs, _floor_section, _seeds_overview, _tables_section, read_inputs, write_tables
+from ..core.plateau_record import STATUS_COMPLETE, run_name, write_tree
+from .index import (ReportInputs, _floor_section, _seeds_overview, _study_section, _tables_section, read_inputs,
+                    write_study, write_tables)
 from .paper import PaperNumbers, load_paper_numbers
 from .plateau import PlateauRecord, changed_settings, load_record
 from .schema import DATASET_LABEL, ROW_LABEL
+from .study import StudySpec
 
 __all__ = ["load_records", "build_full_report", "RECORD_GLOB"]
 
@@ -52,9 +58,19 @@ def load_records(folder: Path) -> list[PlateauRecord]:
     return out
 
 
+def _label(name: str) -> str:
+    """A model's row label, or ``study arm <arm>`` for ``study:<arm>``."""
+    return f"study arm `{name.split(':', 1)[1]}`" if name.startswith("study:") else ROW_LABEL.get(name, name)
+
+
+def _at_full(params: Any) -> Any:
+    """``params`` read at ``scale: full`` (what the records were trained at)."""
+    return params if params.scale == "full" else params.model_copy(update={"scale": "full"})
+
+
 def _provenance_rows(records: Sequence[PlateauRecord], params: Any) -> tuple[list[str], dict[tuple[str, str], str]]:
-    """The table naming, per (dataset, model), the record, commit and machine its rows come from,
-    and what today's params change of its runs; and each incomplete run's line."""
+    """The table naming, per (dataset, model or study arm), the record, commit and machine its rows
+    come from, and what today's params change of its runs; and each incomplete run's line."""
     lines = ["| dataset | model | seeds | record | commit | machine | today's params would change |",
              "|---|---|---|---|---|---|---|"]
     incomplete: dict[tuple[str, str], str] = {}
@@ -64,15 +80,15 @@ def _provenance_rows(records: Sequence[PlateauRecord], params: Any) -> tuple[lis
         by_model: dict[str, list[int]] = {}
         for run in rec.data["runs"]:
             if run["status"] == STATUS_COMPLETE:
-                by_model.setdefault(run["model"], []).append(run["seed"])
+                by_model.setdefault(run_name(run), []).append(run["seed"])
             else:
-                incomplete[(ds, f"{run['model']} seed {run['seed']}")] = run["reason"]
+                incomplete[(ds, f"{run_name(run)} seed {run['seed']}")] = run["reason"]
         for model, seeds in by_model.items():
-            changed = sorted({k for r in rec.runs if r.model == model
+            changed = sorted({k for r in rec.runs if r.name == model
                               for k in changed_settings(r, params, rec.scale, rec.device)})
             shown = ", ".join(f"`{k}`" for k in changed[:4]) + (f" and {len(changed) - 4} more" if len(changed) > 4
                                                                   else "") or "nothing"
-            lines.append(f"| {DATASET_LABEL.get(ds, ds)} | {ROW_LABEL.get(model, model)} | "
+            lines.append(f"| {DATASET_LABEL.get(ds, ds)} | {_label(model)} | "
                          f"{', '.join(map(str, sorted(seeds)))} | [{Path(rec.path).name}]"
                          f"(../../benchmarks/records/full/{Path(rec.path).name}) | {rec.commit[:12]} | {rec.machine} | "
                          f"{shown} |")
@@ -80,19 +96,29 @@ def _provenance_rows(records: Sequence[PlateauRecord], params: Any) -> tuple[lis
 
 
 def _not_recorded(records: Sequence[PlateauRecord], params: Any) -> list[str]:
-    """Per dataset of the params, the models (and seeds) at ``full`` with no complete recorded run."""
-    have = {(r.dataset, r.model, r.seed) for rec in records for r in rec.runs}
+    """Per dataset of the params, the models and study arms (and seeds) at ``full`` with no
+    complete recorded run."""
+    have = {(r.dataset, r.name, r.seed) for rec in records for r in rec.runs}
+    full = _at_full(params)
     out = []
     for ds in params.dataset_ids:
-        missing = []
-        for m in params.model_ids:
-            want = params.seeds_of(MODELS[m].group, ds, "full")
+        planned = [(m, params.seeds_of(MODELS[m].group, ds, "full")) for m in params.model_ids]
+        if ds in full.study_datasets:
+            base = params.seeds_of(MODELS[params.study.base_model].group, ds, "full")
+            planned += [(f"study:{arm}", base) for arm in params.study.arm_ids]
+        models, arms = [], []
+        for m, want in planned:
             lacking = [k for k in want if (ds, m, k) not in have]
             if lacking:
-                missing.append(ROW_LABEL.get(m, m) + ("" if len(lacking) == len(want)
-                                                      else f" (seeds {', '.join(map(str, lacking))})"))
-        if missing:
-            out.append(f"- {DATASET_LABEL.get(ds, ds)}: {', '.join(missing)}")
+                seeds = "" if len(lacking) == len(want) else f" (seeds {', '.join(map(str, lacking))})"
+                if m.startswith("study:"):
+                    arms.append(f"`{m.split(':', 1)[1]}`{seeds}")
+                else:
+                    models.append(ROW_LABEL.get(m, m) + seeds)
+        if arms:
+            models.append(f"the loss-balancing study's arms {', '.join(arms)}")
+        if models:
+            out.append(f"- {DATASET_LABEL.get(ds, ds)}: {', '.join(models)}")
     return out
 
 
@@ -136,14 +162,14 @@ def _page(records: Sequence[PlateauRecord], params: Any, parts: Any, claims: "pd
              "from the tables below and the claims on them are not decidable here.", "", *missing, ""]
             if missing else ["Every dataset, model and seed of the params at `scale: full` is recorded.", ""])
     out += _seeds_overview(parts.results, parts.scales) + _decided_section(parts, claims)
-    out += _floor_section(parts) + _tables_section(parts)
+    out += _floor_section(parts) + _tables_section(parts) + _study_section(parts)
     return "\n".join(out).rstrip() + "\n"
 
 
 def build_full_report(records: Sequence[PlateauRecord], params: Any, out_dir: Path,
                       paper: Optional[PaperNumbers] = None) -> list[str]:
-    """The report at ``full`` under ``out_dir`` (``index.md``, ``metrics.json``, ``tables/``),
-    replaced whole, from the version-2 ``records``. Table III and its exact-count claims are the
+    """The report at ``full`` under ``out_dir`` (``index.md``, ``metrics.json``, ``tables/``; with
+    the study, ``figures/``), replaced whole, from the version-2 ``records``. Table III and its exact-count claims are the
     default report's (the networks, not their training): left out here. Without a version-2
     record the page says so. Returns the written paths relative to ``out_dir``."""
     full = [r for r in records if r.data is not None]
@@ -157,8 +183,9 @@ def build_full_report(records: Sequence[PlateauRecord], params: Any, out_dir: Pa
         seeds: dict[str, dict[str, list[int]]] = {}
         for rec in full:
             assert rec.data is not None
-            for model, seed in write_tree(rec.data, tree):
-                seeds.setdefault(rec.data["dataset"], {}).setdefault(model, []).append(seed)
+            for model, seed, arm in write_tree(rec.data, tree):
+                if arm is None:
+                    seeds.setdefault(rec.data["dataset"], {}).setdefault(model, []).append(seed)
         datasets = [ds for ds in params.dataset_ids if ds in seeds] + sorted(set(seeds) - set(params.dataset_ids))
         models = [m for m in params.model_ids if any(m in s for s in seeds.values())]
         models += sorted({m for s in seeds.values() for m in s} - set(models))
@@ -171,6 +198,10 @@ def build_full_report(records: Sequence[PlateauRecord], params: Any, out_dir: Pa
                                                                    for ds, s in seeds.items()},
                                             paper or load_paper_numbers())
             parts, paths = write_tables(inp, page / "tables", "full")
+            spec = StudySpec.from_params(_at_full(params))
+            spec = replace(spec, datasets=tuple(ds for ds in spec.datasets if ds in datasets))
+            if spec.datasets:  # the study at full, on its recorded datasets
+                paths += write_study(inp, spec, parts, page / "tables", page / "figures", page)
             io.write_json(page / "metrics.json", parts.headline)
             io.write_text(page / "index.md", _page(full, params, parts, pd.read_csv(page / "tables" / "claims.csv")))
             written = [Path(p).relative_to(page).as_posix() for p in paths] + ["metrics.json", "index.md"]
@@ -186,7 +217,7 @@ def _check(records: Sequence[PlateauRecord]) -> None:
     seen: dict[tuple[str, str, int], str] = {}
     for rec in records:
         for r in rec.runs:
-            key = (r.dataset, r.model, r.seed)
+            key = (r.dataset, r.name, r.seed)
             if key in seen:
-                raise ReportInputError(f"{rec.path}: {r.model} seed {r.seed} on {r.dataset} is also in {seen[key]}")
+                raise ReportInputError(f"{rec.path}: {r.name} seed {r.seed} on {r.dataset} is also in {seen[key]}")
             seen[key] = rec.path

@@ -28,7 +28,8 @@ __all__ = ["PlateauRun", "PlateauRecord", "PlateauEvidence", "changed_settings",
 
 @dataclass(frozen=True)
 class PlateauRun:
-    """One recorded run (the keys of :data:`~compact_perception.core.plateau_record.RUN_KEYS`)."""
+    """One recorded run (the keys of :data:`~compact_perception.core.plateau_record.RUN_KEYS`; ``arm``:
+    the loss-balancing study's arm it trained, ``None`` for a model's own recipe)."""
 
     dataset: str
     model: str
@@ -40,6 +41,12 @@ class PlateauRun:
     train_seconds: float
     floor_margin: dict[str, float]
     settings: dict[str, Any]
+    arm: Optional[str] = None
+
+    @property
+    def name(self) -> str:
+        """The model id, or ``study:<arm>``."""
+        return f"study:{self.arm}" if self.arm is not None else self.model
 
 
 @dataclass(frozen=True)
@@ -56,7 +63,8 @@ class PlateauRecord:
     data: Optional[dict[str, Any]] = None     # a version-2 record whole (its runs' files: report/full.py)
 
     def runs_of(self, model: str) -> list[PlateauRun]:
-        return [r for r in self.runs if r.model == model]
+        """The runs of ``model``'s own recipe (a study arm's runs, on its base model, left out)."""
+        return [r for r in self.runs if r.model == model and r.arm is None]
 
 
 def changed_settings(run: PlateauRun, params: Any, scale: str, device: str = "cpu") -> list[str]:
@@ -64,9 +72,11 @@ def changed_settings(run: PlateauRun, params: Any, scale: str, device: str = "cp
     removed keys included), sorted, less those that cannot change a run on ``device``
     (:func:`~compact_perception.core.plateau_record.changed_keys`); empty when today's params would
     train that run the same way."""
+    if run.arm is not None and run.arm not in params.study.arms:
+        return [f"study.arms.{run.arm}"]
     if run.model not in params.train.models:
         return [f"train.models.{run.model}"]
-    return changed_keys(run.settings, settings_at(params, run.model, run.dataset, scale), device)
+    return changed_keys(run.settings, settings_at(params, run.model, run.dataset, scale, run.arm), device)
 
 
 def load_record(path: Path) -> Optional[PlateauRecord]:
@@ -80,7 +90,7 @@ def load_record(path: Path) -> Optional[PlateauRecord]:
     problem = record_problem(data)
     if problem:
         raise ReportInputError(f"{path}: {problem}")
-    runs = tuple(PlateauRun(**{k: run[k] for k in RUN_KEYS}) for run in data["runs"]
+    runs = tuple(PlateauRun(**{k: run[k] for k in RUN_KEYS}, arm=run.get("arm")) for run in data["runs"]
                  if data["version"] == 1 or run["status"] == STATUS_COMPLETE)
     return PlateauRecord(str(path), data["scale"], str(data.get("commit", "")), str(data.get("machine", "")),
                          str(data.get("command", "")), runs, str(data.get("device", "cpu")),
