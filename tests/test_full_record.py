@@ -410,3 +410,20 @@ def test_a_study_part_sets_the_copys_params_to_its_arms_and_the_base_model(tmp_p
         assert done.returncode == 1 and done.stderr.strip().splitlines()[-1].startswith(
             "error: --arms: expected distinct arms of study.arms in"), done.stderr
         assert not (tmp_path / "x.json").exists()
+
+
+def test_the_seeds_each_inconclusive_claim_needs_are_counted_per_dataset() -> None:
+    """claims.csv's seeds_to_decide is a count, ">100" or empty: binned by hand below, per dataset
+    in the order given, decided and not-decidable rows left out, a dataset without one absent."""
+    from compact_perception.report.full import seeds_needed
+
+    claims = pd.DataFrame({
+        "dataset": ["C", "B", "B", "B", "B", "B", "C", "A"],
+        "verdict": ["inconclusive", "inconclusive", "inconclusive", "inconclusive", "inconclusive", "reproduced",
+                    "not decidable", "reproduced"],
+        "seeds_to_decide": ["3", "10", "11", ">100", None, "4", "5", "3"],
+    })
+    assert seeds_needed(claims, ["A", "B", "C"]) == {
+        "B": {"at_most_10": 1, "11_to_100": 1, "over_100": 1, "no_count": 1},
+        "C": {"at_most_10": 1, "11_to_100": 0, "over_100": 0, "no_count": 0}}
+    assert list(seeds_needed(claims, ["C", "B"])) == ["C", "B"]

@@ -39,7 +39,7 @@ from .plateau import PlateauRecord, changed_settings, load_record
 from .schema import DATASET_LABEL, ROW_LABEL
 from .study import StudySpec
 
-__all__ = ["load_records", "build_full_report", "RECORD_GLOB"]
+__all__ = ["load_records", "build_full_report", "seeds_needed", "RECORD_GLOB", "SEEDS_NEEDED_BINS"]
 
 log = logging.getLogger(__name__)
 
@@ -122,6 +122,36 @@ def _not_recorded(records: Sequence[PlateauRecord], params: Any) -> list[str]:
     return out
 
 
+#: How the seeds per model an inconclusive claim would need (claims.csv ``seeds_to_decide``) are
+#: counted per dataset in ``metrics.json``'s ``seeds_to_decide``, with each bin's words.
+SEEDS_NEEDED_BINS: dict[str, str] = {
+    "at_most_10": "at most 10 seeds per model would detect the paper's effect",
+    "11_to_100": "11 to 100 would",
+    "over_100": "more than 100 (the test episodes limit them: more test frames, not seeds)",
+    "no_count": "no count (a claim of equality, the loss weights' order, or no printed effect)",
+}
+
+
+def seeds_needed(claims: "pd.DataFrame", datasets: Sequence[str]) -> dict[str, dict[str, int]]:
+    """Per dataset (in ``datasets`` order) with an inconclusive claim, how many of its inconclusive
+    claims fall in each bin of :data:`SEEDS_NEEDED_BINS` by their ``seeds_to_decide``."""
+    out: dict[str, dict[str, int]] = {}
+    rows = claims[claims["verdict"] == "inconclusive"] if len(claims) else claims
+    for ds in datasets:
+        counts = dict.fromkeys(SEEDS_NEEDED_BINS, 0)
+        for need in rows[rows["dataset"] == ds]["seeds_to_decide"] if len(rows) else ():
+            text = "" if pd.isna(need) else str(need).strip()
+            if not text:
+                counts["no_count"] += 1
+            elif text.startswith(">"):
+                counts["over_100"] += 1
+            else:
+                counts["at_most_10" if int(float(text)) <= 10 else "11_to_100"] += 1
+        if sum(counts.values()):
+            out[ds] = counts
+    return out
+
+
 def _decided_section(parts: Any, claims: "pd.DataFrame") -> list[str]:
     """The scorecard at ``full`` in words: the verdict counts (``metrics.json``), how many claims
     are not decidable for want of a recorded run, and each decided or inconclusive claim with its
@@ -134,6 +164,14 @@ def _decided_section(parts: Any, claims: "pd.DataFrame") -> list[str]:
            f"{counts.get('contradicted', 0)} contradicted, {counts.get('inconclusive', 0)} inconclusive and "
            f"{counts.get('not_decidable', 0)} not decidable, {no_data} of them for want of a recorded run (a model "
            "not recorded yet). Table III's exact-count claims are the default report's.", ""]
+    needed = (parts.headline or {}).get("seeds_to_decide") or {}
+    if needed:
+        out += ["The seeds per model each inconclusive claim would need (at 80% power, the paper's effect; "
+                "`seeds_to_decide` in [metrics.json](metrics.json)):", ""]
+        out += [f"- {DATASET_LABEL.get(ds, ds)}: {sum(c.values())} inconclusive; "
+                + "; ".join(f"{SEEDS_NEEDED_BINS[k]}: {c[k]}" for k in SEEDS_NEEDED_BINS if c[k])
+                for ds, c in needed.items()]
+        out += [""]
     decided = claims[claims["verdict"] != "not decidable"] if len(claims) else claims
     for _, row in decided.iterrows():
         need = row.get("seeds_to_decide")
@@ -198,12 +236,14 @@ def build_full_report(records: Sequence[PlateauRecord], params: Any, out_dir: Pa
                                                                    for ds, s in seeds.items()},
                                             paper or load_paper_numbers())
             parts, paths = write_tables(inp, page / "tables", "full")
+            claims = pd.read_csv(page / "tables" / "claims.csv")
+            parts.headline = {**(parts.headline or {}), "seeds_to_decide": seeds_needed(claims, datasets)}
             spec = StudySpec.from_params(_at_full(params))
             spec = replace(spec, datasets=tuple(ds for ds in spec.datasets if ds in datasets))
             if spec.datasets:  # the study at full, on its recorded datasets
                 paths += write_study(inp, spec, parts, page / "tables", page / "figures", page)
             io.write_json(page / "metrics.json", parts.headline)
-            io.write_text(page / "index.md", _page(full, params, parts, pd.read_csv(page / "tables" / "claims.csv")))
+            io.write_text(page / "index.md", _page(full, params, parts, claims))
             written = [Path(p).relative_to(page).as_posix() for p in paths] + ["metrics.json", "index.md"]
         if out_dir.exists():
             shutil.rmtree(out_dir)
