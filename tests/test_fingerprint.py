@@ -2,22 +2,18 @@
 move from the first layer whose numbers change."""
 from __future__ import annotations
 
-import importlib.util
-
 import torch
 
 from compact_perception.data.loader import make_loader, to_device
 from compact_perception.learning.models import DATASET_SPECS, build_model
 
+from scripts import load_script
 from synthetic import make_cache
 
 
 def _script(root, monkeypatch):
     monkeypatch.setenv("COMPACT_PERCEPTION_UNPINNED", "1")  # importing it must not pin this test process
-    spec = importlib.util.spec_from_file_location("fingerprint_kernels", root / "benchmarks" / "fingerprint_kernels.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("fingerprint_kernels")
 
 
 def test_fingerprint_is_stable_and_locates_a_change(root, tmp_path, monkeypatch):

@@ -24,6 +24,7 @@ from compact_perception.report.index import read_inputs, write_tables
 from compact_perception.report.paper import load_paper_numbers
 from compact_perception.report.plateau import load_record
 from report_fixture import COMPACT, build_tree
+from scripts import load_script
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "benchmarks" / "record_full.py"
@@ -260,11 +261,7 @@ def test_records_of_one_cache_agree_though_one_was_made_before_the_meta_held_its
 def test_a_part_sets_the_copys_params_to_its_runs_alone(tmp_path: Path) -> None:
     """A part of set A ran the study's 27 arms beside its own runs (train@A trains both at full):
     the copy's params now hold this part's dataset, models and seeds and no study arm."""
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("record_full", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = load_script("record_full")
     path = tmp_path / "params.yaml"
     shutil.copy(ROOT / "params.yaml", path)
     assert load_params(path).model_copy(update={"scale": "full"}).study_datasets == ["A"]
@@ -379,11 +376,7 @@ def test_a_study_part_sets_the_copys_params_to_its_arms_and_the_base_model(tmp_p
     """A study part trains its arms (and the base model, which the study compares them with and
     which the train stage skips where the clone has it complete): the copy's params run the study
     on the part's dataset with these arms alone; an unknown arm is one line, nothing written."""
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("record_full", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = load_script("record_full")
     path = tmp_path / "params.yaml"
     shutil.copy(ROOT / "params.yaml", path)
     module.set_params(path, "A", ["chen_bev"], None, ["pcgrad", "cagrad"])

@@ -2,22 +2,20 @@
 computed by hand here, and its hours are samples over the rate."""
 from __future__ import annotations
 
-import importlib.util
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
+from scripts import load_script
+
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "benchmarks" / "gpu_cost.py"
 
 
 def _module():
-    spec = importlib.util.spec_from_file_location("gpu_cost", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("gpu_cost")
 
 
 def test_runs_and_frames_are_the_params_ones():
