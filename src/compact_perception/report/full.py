@@ -64,8 +64,8 @@ def _label(name: str) -> str:
 
 
 def _at_full(params: Any) -> Any:
-    """``params`` read at ``scale: full`` (what the records were trained at)."""
-    return params if params.scale == "full" else params.model_copy(update={"scale": "full"})
+    """``params`` read at ``scale: full`` (what the records were trained at), whatever its own ``scale``."""
+    return params.model_copy(update={"scale": "full"})
 
 
 def _provenance_rows(records: Sequence[PlateauRecord], params: Any) -> tuple[list[str], dict[tuple[str, str], str]]:
