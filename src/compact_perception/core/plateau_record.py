@@ -374,6 +374,11 @@ def _write_curves(live: Path, curves: Mapping[str, Sequence[Sequence[Any]]]) -> 
 
 
 # ----------------------------------------------------------------------------- the writer
+def _run_paths(dataset: str, model: str, seed: int, arm: Optional[str], root: Path) -> RunPaths:
+    """Where a recorded run's files live: the study's folders for an arm's run, else the model's."""
+    return study_paths(arm, seed, dataset, root) if arm is not None else run_paths(dataset, model, seed, root)
+
+
 def _record_run(root: Path, dataset: str, model: str, seed: int, arm: Optional[str], paths: RunPaths,
                 settings: dict[str, Any], command: str) -> dict[str, Any]:
     """One run's entry: ``complete`` with its files whole, or ``incomplete`` with what was found."""
@@ -426,7 +431,7 @@ def record_runs(root: Path, params: Any, dataset: str, seeds: Mapping[str, Seque
     for model, arm, model_seeds in planned:
         settings = settings_at(params, model, dataset, params.scale, arm)
         for seed in model_seeds:
-            paths = study_paths(arm, seed, dataset, root) if arm is not None else run_paths(dataset, model, seed, root)
+            paths = _run_paths(dataset, model, seed, arm, root)
             command = run_command(model, int(seed), arm) if run_command else ""
             runs.append(_record_run(root, dataset, model, seed, arm, paths, settings, command))
     floor = {}
@@ -486,7 +491,7 @@ def write_tree(record: Mapping[str, Any], root: Path) -> list[tuple[str, int, Op
         if run.get("status") != STATUS_COMPLETE:
             continue
         arm = run.get("arm")
-        paths = study_paths(arm, run["seed"], ds, root) if arm is not None else run_paths(ds, run["model"], run["seed"], root)
+        paths = _run_paths(ds, run["model"], run["seed"], arm, root)
         write_json(paths.run_dir / "summary.json", run["summary"])
         _write_curves(paths.live, run["curves"])
         write_json(paths.metrics_path, run["metrics"])
