@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from compact_perception.core.params import parse_params
-from compact_perception.core.layout import run_paths, study_paths
+from compact_perception.core.layout import run_paths, study_arm, study_paths, study_run_name
 from compact_perception.learning.plan import PlannedRun, dataset_runs, planned_run
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -108,6 +108,17 @@ def test_one_run_paths_class():
     defined = [p.relative_to(PKG).as_posix() for p in PKG.rglob("*.py")
                if any(isinstance(n, ast.ClassDef) and n.name == "RunPaths" for n in ast.walk(ast.parse(p.read_text())))]
     assert defined == ["core/layout.py"]
+
+
+def test_a_study_run_name_is_spelt_in_one_place():
+    """``study:<arm>`` names a study run beside the model ids (run folders, records, the report);
+    only core/layout builds or parses it, and the two functions invert each other."""
+    assert study_run_name("gradnorm") == "study:gradnorm" and study_arm("study:gradnorm") == "gradnorm"
+    assert study_arm("compact_15l") is None and study_paths("uw", 1, "A").model == study_run_name("uw")
+    spelt = [p.relative_to(PKG).as_posix() for p in PKG.rglob("*.py")
+             if any(isinstance(n, ast.Constant) and isinstance(n.value, str) and n.value.startswith("study:")
+                    for n in ast.walk(ast.parse(p.read_text())))]
+    assert spelt == ["core/layout.py"]
 
 
 @pytest.fixture()

@@ -18,16 +18,28 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable
+from typing import Iterable, Optional
 
-__all__ = ["RunPaths", "run_paths", "study_paths", "floor_paths", "cache_dir", "evaluation_folders", "STUDY_DIR",
-           "BEST_HASH_KEY"]
+__all__ = ["RunPaths", "run_paths", "study_paths", "study_run_name", "study_arm", "floor_paths", "cache_dir",
+           "evaluation_folders", "STUDY_DIR", "BEST_HASH_KEY"]
 
 #: The folder of a dataset's study runs (not a model id: :mod:`.catalog` registers none by this name).
 STUDY_DIR = "study"
 #: The key of ``summary.json`` that records the SHA-256 of ``best.pt`` as the finished run left it
 #: (training writes it; evaluation checks the checkpoint against it before it trusts it).
 BEST_HASH_KEY = "best_sha256"
+#: What a study run's name (:attr:`RunPaths.model`, a record's run) starts with: ``study:<arm>``.
+_STUDY_PREFIX = "study:"
+
+
+def study_run_name(arm: str) -> str:
+    """The name of a run of study arm ``arm``: ``study:<arm>``, beside the model ids."""
+    return f"{_STUDY_PREFIX}{arm}"
+
+
+def study_arm(name: str) -> Optional[str]:
+    """The study arm a run name (:func:`study_run_name`) belongs to; ``None`` for a model id."""
+    return name[len(_STUDY_PREFIX):] if name.startswith(_STUDY_PREFIX) else None
 
 
 @dataclass(frozen=True)
@@ -95,7 +107,7 @@ def study_paths(arm: str, seed: int, dataset: str, root: Path | str = ".") -> Ru
     ``dataset``): ``runs/<ds>/study/<arm>/seed<k>/``, ``results/<ds>/study/<arm>/seed<k>/metrics.json``,
     ``data/eval/<ds>/study/<arm>/seed<k>/``: inside the dataset's own folders, which its train and
     evaluate stages write."""
-    return _paths(dataset, f"study:{arm}", seed, root, Path(dataset) / STUDY_DIR / arm / f"seed{seed}")
+    return _paths(dataset, study_run_name(arm), seed, root, Path(dataset) / STUDY_DIR / arm / f"seed{seed}")
 
 
 def floor_paths(dataset: str, trivial_id: str, root: Path | str = ".") -> RunPaths:

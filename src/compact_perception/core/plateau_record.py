@@ -29,7 +29,7 @@ from .catalog import DATASETS, MODELS, STOP_CAP, STOP_PLATEAU
 from .errors import ReportInputError
 from .floor_rule import FLOOR_PREDICTORS
 from .io import read_json, write_json, write_text
-from .layout import RunPaths, cache_dir, floor_paths, run_paths, study_paths
+from .layout import RunPaths, cache_dir, floor_paths, run_paths, study_paths, study_run_name
 from .params.base import SCALES, resolve_scale
 from .params.errors import shown
 from .params.former import RENAMED_KEYS, UNRECORDED_VALUES
@@ -85,7 +85,7 @@ ARM_PATTERN = re.compile(r"[a-z][a-z0-9_]{0,39}")
 
 def run_name(run: Mapping[str, Any]) -> str:
     """A recorded run's model id, or ``study:<arm>`` for a run of the loss-balancing study."""
-    return f"study:{run['arm']}" if run.get("arm") is not None else str(run["model"])
+    return study_run_name(run["arm"]) if run.get("arm") is not None else str(run["model"])
 
 
 def run_problem(run: Any, keys: tuple[str, ...] = tuple(RUN_KEYS)) -> Optional[str]:

@@ -31,7 +31,9 @@ import pandas as pd
 from ..core import io
 from ..core.catalog import MODELS
 from ..core.errors import ReportInputError
+from ..core.layout import study_arm, study_run_name
 from ..core.plateau_record import STATUS_COMPLETE, run_name, write_tree
+from ..stats import MAX_SEEDS_TO_DECIDE
 from .index import (ReportInputs, _floor_section, _seeds_overview, _study_section, _tables_section, read_inputs,
                     write_study, write_tables)
 from .paper import PaperNumbers, load_paper_numbers
@@ -59,8 +61,9 @@ def load_records(folder: Path) -> list[PlateauRecord]:
 
 
 def _label(name: str) -> str:
-    """A model's row label, or ``study arm <arm>`` for ``study:<arm>``."""
-    return f"study arm `{name.split(':', 1)[1]}`" if name.startswith("study:") else ROW_LABEL.get(name, name)
+    """A model's row label, or ``study arm `<arm>``` for a study run's name."""
+    arm = study_arm(name)
+    return f"study arm `{arm}`" if arm is not None else ROW_LABEL.get(name, name)
 
 
 def _at_full(params: Any) -> Any:
@@ -105,14 +108,14 @@ def _not_recorded(records: Sequence[PlateauRecord], params: Any) -> list[str]:
         planned = [(m, params.seeds_of(MODELS[m].group, ds, "full")) for m in params.model_ids]
         if ds in full.study_datasets:
             base = params.seeds_of(MODELS[params.study.base_model].group, ds, "full")
-            planned += [(f"study:{arm}", base) for arm in params.study.arm_ids]
+            planned += [(study_run_name(arm), base) for arm in params.study.arm_ids]
         models, arms = [], []
         for m, want in planned:
             lacking = [k for k in want if (ds, m, k) not in have]
             if lacking:
                 seeds = "" if len(lacking) == len(want) else f" (seeds {', '.join(map(str, lacking))})"
-                if m.startswith("study:"):
-                    arms.append(f"`{m.split(':', 1)[1]}`{seeds}")
+                if study_arm(m) is not None:
+                    arms.append(f"`{study_arm(m)}`{seeds}")
                 else:
                     models.append(ROW_LABEL.get(m, m) + seeds)
         if arms:
@@ -124,10 +127,11 @@ def _not_recorded(records: Sequence[PlateauRecord], params: Any) -> list[str]:
 
 #: How the seeds per model an inconclusive claim would need (claims.csv ``seeds_to_decide``) are
 #: counted per dataset in ``metrics.json``'s ``seeds_to_decide``, with each bin's words.
+_MANY = MAX_SEEDS_TO_DECIDE
 SEEDS_NEEDED_BINS: dict[str, str] = {
     "at_most_10": "at most 10 seeds per model would detect the paper's effect",
-    "11_to_100": "11 to 100 would",
-    "over_100": "more than 100 (the test episodes limit them: more test frames, not seeds)",
+    f"11_to_{_MANY}": f"11 to {_MANY} would",
+    f"over_{_MANY}": f"more than {_MANY} (the test episodes limit them: more test frames, not seeds)",
     "no_count": "no count (a claim of equality, the loss weights' order, or no printed effect)",
 }
 
@@ -144,9 +148,9 @@ def seeds_needed(claims: "pd.DataFrame", datasets: Sequence[str]) -> dict[str, d
             if not text:
                 counts["no_count"] += 1
             elif text.startswith(">"):
-                counts["over_100"] += 1
+                counts[f"over_{_MANY}"] += 1
             else:
-                counts["at_most_10" if int(float(text)) <= 10 else "11_to_100"] += 1
+                counts["at_most_10" if int(float(text)) <= 10 else f"11_to_{_MANY}"] += 1
         if sum(counts.values()):
             out[ds] = counts
     return out

@@ -20,6 +20,7 @@ from typing import Any, Optional, Sequence
 from ..core.catalog import MODELS, STOP_PLATEAU, metric_of
 from ..core.errors import ReportInputError
 from ..core.io import read_json
+from ..core.layout import study_run_name
 from ..core.plateau_record import RUN_KEYS, STATUS_COMPLETE, changed_keys, record_problem, settings_at
 from .schema import DATASET_LABEL, METRIC_TASK, ROW_LABEL
 
@@ -46,7 +47,7 @@ class PlateauRun:
     @property
     def name(self) -> str:
         """The model id, or ``study:<arm>``."""
-        return f"study:{self.arm}" if self.arm is not None else self.model
+        return study_run_name(self.arm) if self.arm is not None else self.model
 
 
 @dataclass(frozen=True)
