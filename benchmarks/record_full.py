@@ -25,6 +25,11 @@ the command that re-creates that run alone. A run that failed or did not finish 
 ``incomplete``, with no number. ``--check RECORD`` compares the runs just recorded with the same
 runs of an earlier record and exits 1 unless every recorded number is equal.
 
+``--parallel-runs N`` sets ``train.parallel_runs`` in the copy: how many runs train side by side
+(the stage lowers it to the usable cores), which changes no number (each run keeps its
+``train.num_threads``; the record's settings leave it out). The commit's params say 2, for 2 cores;
+on a machine with more, a part's runs train at once with ``--parallel-runs`` set to their count.
+
 A study part (``--arms``) trains and records arms of the loss-balancing study (params ``study``)
 on the dataset: the copy's params run the study there with these arms alone, and as its models
 ``study.base_model`` alone, whose runs the arms are compared with and which the params need. Those
@@ -111,11 +116,12 @@ def prepare(workdir: Path, commit: str) -> str:
 
 
 def set_params(path: Path, dataset: str, models: list[str], seeds: list[int] | None,
-               arms: list[str] | None = None) -> Params:
+               arms: list[str] | None = None, parallel_runs: int | None = None) -> Params:
     """``scale: full``, this dataset, these models (and seeds) and no study arm in the copy's
     params.yaml, written by DVC's own YAML writer (comments and order kept); returns them validated.
     With ``arms`` (a study part): the study on this dataset with these arms alone, and
-    ``study.base_model`` as the only model (``models`` is not used)."""
+    ``study.base_model`` as the only model (``models`` is not used). ``parallel_runs``, if given, is
+    ``train.parallel_runs``."""
     from dvc.utils.serialize import modify_yaml  # the writer `dvc exp run -S` uses
 
     with modify_yaml(path) as data:
@@ -134,6 +140,8 @@ def set_params(path: Path, dataset: str, models: list[str], seeds: list[int] | N
         if seeds is not None:
             data["baseline_seeds"]["full"] = seeds
             data["datasets"][dataset]["training"]["seeds"]["full"] = seeds
+        if parallel_runs is not None:
+            data["train"]["parallel_runs"] = parallel_runs
     return load_params(path, former=True)
 
 
@@ -191,6 +199,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     where = ap.add_mutually_exclusive_group(required=True)
     where.add_argument("--workdir", type=Path, help="run: the scratch clone to run the stages in")
     where.add_argument("--root", type=Path, help="record only: a copy whose stages have run")
+    ap.add_argument("--parallel-runs", type=int, help="run: train.parallel_runs in the copy (runs side by side; "
+                                                       "changes no number)")
     ap.add_argument("--commit", default="HEAD", help="run: the code to run (default HEAD)")
     ap.add_argument("--machine", help="where they ran (default: this machine's CPU)")
     ap.add_argument("--out", type=Path, help="the record (default benchmarks/records/full/<ds>[_<part>].json)")
@@ -205,6 +215,8 @@ def main(argv: list[str] | None = None) -> None:
     try:
         if args.seeds is not None and any(s < 0 for s in args.seeds):
             raise RecordError(f"--seeds: expected integers of at least 0 (got {args.seeds})")
+        if args.parallel_runs is not None and args.parallel_runs < 1:
+            raise RecordError(f"--parallel-runs: expected an integer of at least 1 (got {args.parallel_runs})")
         if args.part is not None and not (args.part.replace("_", "").isalnum() and len(args.part) <= 40):
             raise RecordError(f"--part: expected a short name of letters, digits and _ (got {args.part[:60]!r})")
         root = args.workdir or args.root
@@ -213,7 +225,8 @@ def main(argv: list[str] | None = None) -> None:
             before = load_params(args.workdir / "params.yaml", former=True)
             _check_arms(args.arms, before, args.workdir / "params.yaml")
             models = args.models or list(before.model_ids)
-            params = set_params(args.workdir / "params.yaml", args.dataset, models, args.seeds, args.arms)
+            params = set_params(args.workdir / "params.yaml", args.dataset, models, args.seeds, args.arms,
+                                args.parallel_runs)
         else:
             params = load_params(root / "params.yaml", former=True)
             _check_arms(args.arms, params, root / "params.yaml")
@@ -231,7 +244,9 @@ def main(argv: list[str] | None = None) -> None:
         base = ["python", "benchmarks/record_full.py", "--dataset", args.dataset, "--commit", commit[:12]]
         part_cmd = base + [*(["--part", args.part] if args.part else []),
                            *(["--arms", *args.arms] if args.arms else ["--models", *models]),
-                           *(["--seeds", *map(str, args.seeds)] if args.seeds else []), "--workdir", "<scratch folder>"]
+                           *(["--seeds", *map(str, args.seeds)] if args.seeds else []),
+                           *(["--parallel-runs", str(args.parallel_runs)] if args.parallel_runs else []),
+                           "--workdir", "<scratch folder>"]
         provenance = {"commit": commit, "machine": args.machine or machine(),
                       "command": shlex.join(part_cmd) + (f" (stages exited {rc})" if rc else "")}
         record = record_runs(root, params, args.dataset, seeds, provenance, arms=arms,

@@ -17,8 +17,8 @@ import yaml
 
 from compact_perception.core.params import load_params, parse_params
 from compact_perception.core.errors import ReportInputError
-from compact_perception.core.plateau_record import (STATUS_INCOMPLETE, changed_keys, record_problem, record_runs,
-                                                    write_tree)
+from compact_perception.core.plateau_record import (NEUTRAL_KEYS, STATUS_INCOMPLETE, changed_keys, record_problem,
+                                                    record_runs, write_tree)
 from compact_perception.report.full import build_full_report, load_records
 from compact_perception.report.index import read_inputs, write_tables
 from compact_perception.report.paper import load_paper_numbers
@@ -200,6 +200,7 @@ def test_the_script_records_a_copy_and_checks_a_rerun_against_a_record(tmp_path:
     assert "Traceback" not in done.stderr
     for bad, says in ((["--seeds", "-1"], "--seeds: expected integers of at least 0"),
                       (["--part", "a/b"], "--part: expected a short name"),
+                      (["--parallel-runs", "0"], "--parallel-runs: expected an integer of at least 1"),
                       (["--models", "nope"], "--models: ['nope']")):
         done = _script("--dataset", "B", "--root", str(copy), "--out", str(tmp_path / "x.json"), *bad)
         assert done.returncode == 1 and done.stderr.strip().splitlines()[-1].startswith(f"error: {says}"), done.stderr
@@ -274,6 +275,10 @@ def test_a_part_sets_the_copys_params_to_its_runs_alone(tmp_path: Path) -> None:
     assert (params.scale, params.dataset_ids, params.model_ids) == ("full", ["A"], ["chen_bev", "polarnet"])
     assert params.study_datasets == [] and params.seeds_of("baseline", "A") == [1]
     assert "# beyond the paper" in path.read_text()  # DVC's writer keeps the comments
+    assert params.train.parallel_runs == load_params(ROOT / "params.yaml").train.parallel_runs
+    module.set_params(path, "A", ["gradnorm_segnet"], None, parallel_runs=3)
+    assert load_params(path).train.parallel_runs == 3 and load_params(path).model_ids == ["gradnorm_segnet"]
+    assert "train.parallel_runs" in NEUTRAL_KEYS  # so no record's settings hold it, and none is flagged by it
 
 
 # ----------------------------------------------------------------------------- the loss-balancing study at full
