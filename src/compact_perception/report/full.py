@@ -61,7 +61,7 @@ def load_records(folder: Path) -> list[PlateauRecord]:
 
 
 def _label(name: str) -> str:
-    """A model's row label, or ``study arm `<arm>``` for a study run's name."""
+    """A model's row label, or "study arm" and the arm for a study run's name."""
     arm = study_arm(name)
     return f"study arm `{arm}`" if arm is not None else ROW_LABEL.get(name, name)
 
@@ -114,8 +114,8 @@ def _not_recorded(records: Sequence[PlateauRecord], params: Any) -> list[str]:
             lacking = [k for k in want if (ds, m, k) not in have]
             if lacking:
                 seeds = "" if len(lacking) == len(want) else f" (seeds {', '.join(map(str, lacking))})"
-                if study_arm(m) is not None:
-                    arms.append(f"`{study_arm(m)}`{seeds}")
+                if (arm := study_arm(m)) is not None:
+                    arms.append(f"`{arm}`{seeds}")
                 else:
                     models.append(ROW_LABEL.get(m, m) + seeds)
         if arms:
