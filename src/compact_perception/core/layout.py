@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Optional
 
-__all__ = ["RunPaths", "run_paths", "study_paths", "study_run_name", "study_arm", "floor_paths", "cache_dir",
+__all__ = ["RunPaths", "run_paths", "study_paths", "paths_of_run", "study_run_name", "study_arm", "floor_paths", "cache_dir",
            "evaluation_folders", "STUDY_DIR", "BEST_HASH_KEY"]
 
 #: The folder of a dataset's study runs (not a model id: :mod:`.catalog` registers none by this name).
@@ -108,6 +108,13 @@ def study_paths(arm: str, seed: int, dataset: str, root: Path | str = ".") -> Ru
     ``data/eval/<ds>/study/<arm>/seed<k>/``: inside the dataset's own folders, which its train and
     evaluate stages write."""
     return _paths(dataset, study_run_name(arm), seed, root, Path(dataset) / STUDY_DIR / arm / f"seed{seed}")
+
+
+def paths_of_run(dataset: str, model: str, seed: int, arm: Optional[str] = None,
+                 root: Path | str = ".") -> RunPaths:
+    """Paths of a run of ``model`` or, with ``arm``, of that study arm (:func:`study_paths`; its model
+    is the study's base model), at training seed ``seed`` on ``dataset``."""
+    return study_paths(arm, seed, dataset, root) if arm is not None else run_paths(dataset, model, seed, root)
 
 
 def floor_paths(dataset: str, trivial_id: str, root: Path | str = ".") -> RunPaths:

@@ -29,7 +29,7 @@ from .catalog import DATASETS, MODELS, STOP_CAP, STOP_PLATEAU
 from .errors import ReportInputError
 from .floor_rule import FLOOR_PREDICTORS
 from .io import read_json, write_json, write_text
-from .layout import RunPaths, cache_dir, floor_paths, run_paths, study_paths, study_run_name
+from .layout import RunPaths, cache_dir, floor_paths, paths_of_run, study_run_name
 from .params.base import SCALES, resolve_scale
 from .params.errors import shown
 from .params.former import RENAMED_KEYS, UNRECORDED_VALUES
@@ -374,11 +374,6 @@ def _write_curves(live: Path, curves: Mapping[str, Sequence[Sequence[Any]]]) -> 
 
 
 # ----------------------------------------------------------------------------- the writer
-def _run_paths(dataset: str, model: str, seed: int, arm: Optional[str], root: Path) -> RunPaths:
-    """Where a recorded run's files live: the study's folders for an arm's run, else the model's."""
-    return study_paths(arm, seed, dataset, root) if arm is not None else run_paths(dataset, model, seed, root)
-
-
 def _record_run(root: Path, dataset: str, model: str, seed: int, arm: Optional[str], paths: RunPaths,
                 settings: dict[str, Any], command: str) -> dict[str, Any]:
     """One run's entry: ``complete`` with its files whole, or ``incomplete`` with what was found."""
@@ -431,7 +426,7 @@ def record_runs(root: Path, params: Any, dataset: str, seeds: Mapping[str, Seque
     for model, arm, model_seeds in planned:
         settings = settings_at(params, model, dataset, params.scale, arm)
         for seed in model_seeds:
-            paths = _run_paths(dataset, model, seed, arm, root)
+            paths = paths_of_run(dataset, model, seed, arm, root)
             command = run_command(model, int(seed), arm) if run_command else ""
             runs.append(_record_run(root, dataset, model, seed, arm, paths, settings, command))
     floor = {}
@@ -491,7 +486,7 @@ def write_tree(record: Mapping[str, Any], root: Path) -> list[tuple[str, int, Op
         if run.get("status") != STATUS_COMPLETE:
             continue
         arm = run.get("arm")
-        paths = _run_paths(ds, run["model"], run["seed"], arm, root)
+        paths = paths_of_run(ds, run["model"], run["seed"], arm, root)
         write_json(paths.run_dir / "summary.json", run["summary"])
         _write_curves(paths.live, run["curves"])
         write_json(paths.metrics_path, run["metrics"])

@@ -22,7 +22,7 @@ from typing import Any, Optional
 
 from ..core import catalog
 from ..core.params import ModelRecipe
-from ..core.layout import STUDY_DIR, RunPaths, run_paths, study_paths
+from ..core.layout import STUDY_DIR, RunPaths, paths_of_run
 
 __all__ = ["PlannedRun", "dataset_runs", "planned_run", "recipe_of"]
 
@@ -73,7 +73,7 @@ def planned_run(params: Any, dataset: str, model: str, seed: int, arm: Optional[
     if arm is not None and model != params.study.base_model:
         raise ValueError(f"study arm {arm}: trains study.base_model ({params.study.base_model}), not {model}")
     recipe = recipe_of(params, model, arm)
-    paths = study_paths(arm, seed, dataset, root) if arm else run_paths(dataset, model, seed, root)
+    paths = paths_of_run(dataset, model, seed, arm, root)
     return PlannedRun(dataset, model, int(seed), arm, recipe, recipe.key, paths,
                       max_epochs=params.max_epochs_of(recipe, dataset), export_onnx=arm is None,
                       save_predictions=arm is None)
